@@ -1,0 +1,27 @@
+"""One error hierarchy for the whole library.
+
+Every message names the file, field, sensor or frame at fault and what was expected.
+The CLI turns any :class:`RigcalError` into one line on stderr and exit code 1.
+"""
+
+from __future__ import annotations
+
+
+class RigcalError(Exception):
+    """Base class of every error rigcal raises on purpose."""
+
+
+class InputError(RigcalError):
+    """A user's file, field or argument is missing, malformed or inconsistent."""
+
+
+class ConfigError(InputError):
+    """A configuration value (mode, reference sensor, option) is not allowed."""
+
+
+class GeometryError(RigcalError):
+    """A geometric estimate is impossible (degenerate points, too few correspondences)."""
+
+
+class ConvergenceError(RigcalError):
+    """An optimisation did not converge; no result is returned."""

@@ -1,0 +1,64 @@
+"""Closed-form point-set alignment: Kabsch (rigid) and Umeyama (similarity)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from rigcal.errors import GeometryError
+from rigcal.geometry.se3 import from_rt
+
+
+def _check_pairs(points_from: np.ndarray, points_to: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    a = np.asarray(points_from, dtype=float)
+    b = np.asarray(points_to, dtype=float)
+    if a.ndim != 2 or a.shape[1] != 3 or a.shape != b.shape:
+        raise GeometryError(
+            f"alignment needs two (N, 3) point arrays of equal shape, got {a.shape} and {b.shape}"
+        )
+    if a.shape[0] < 3:
+        raise GeometryError(f"alignment needs at least 3 point pairs, got {a.shape[0]}")
+    if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
+        raise GeometryError("alignment got non-finite points")
+    return a, b
+
+
+def _weighted_svd(a, b, weights):
+    w = np.ones(a.shape[0]) if weights is None else np.asarray(weights, dtype=float)
+    w = w / w.sum()
+    ca = w @ a
+    cb = w @ b
+    A = a - ca
+    B = b - cb
+    H = (A * w[:, None]).T @ B
+    U, S, Vt = np.linalg.svd(H)
+    if S[1] < 1e-12 * max(S[0], 1e-300):
+        raise GeometryError(
+            "alignment is degenerate: the points are collinear (rotation about their line is free)"
+        )
+    d = np.sign(np.linalg.det(Vt.T @ U.T))
+    D = np.diag([1.0, 1.0, d if d != 0 else 1.0])
+    R = Vt.T @ D @ U.T
+    return R, ca, cb, A, w, S, D
+
+
+def kabsch(
+    points_from: np.ndarray, points_to: np.ndarray, weights: np.ndarray | None = None
+) -> np.ndarray:
+    """Rigid ``T_to_from`` minimising sum w_i |T p_from_i - p_to_i|^2.
+
+    points_from, points_to: (N, 3), N >= 3, not collinear. Raises GeometryError otherwise.
+    """
+    a, b = _check_pairs(points_from, points_to)
+    R, ca, cb, *_ = _weighted_svd(a, b, weights)
+    return from_rt(R, cb - R @ ca)
+
+
+def umeyama(
+    points_from: np.ndarray, points_to: np.ndarray, weights: np.ndarray | None = None
+) -> tuple[float, np.ndarray]:
+    """Similarity ``p_to = s R p_from + t``; returns (s, T) with T holding R and t."""
+    a, b = _check_pairs(points_from, points_to)
+    R, ca, cb, A, w, S, D = _weighted_svd(a, b, weights)
+    var_a = float(w @ np.sum(A * A, axis=1))
+    s = float(np.sum(S * np.diag(D)) / var_a)
+    return s, from_rt(R, cb - s * R @ ca)

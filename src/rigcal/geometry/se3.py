@@ -1,0 +1,67 @@
+"""SE(3) on (..., 4, 4) arrays: build, invert, compose, apply, exp/log. Batched, pure."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from rigcal.geometry.so3 import hat, so3_exp, so3_log
+
+
+def from_rt(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Homogeneous transforms (..., 4, 4) from rotations (..., 3, 3) and translations (..., 3)."""
+    R = np.asarray(R, dtype=float)
+    t = np.asarray(t, dtype=float)
+    T = np.zeros(np.broadcast_shapes(R.shape[:-2], t.shape[:-1]) + (4, 4))
+    T[..., :3, :3] = R
+    T[..., :3, 3] = t
+    T[..., 3, 3] = 1.0
+    return T
+
+
+def invert(T: np.ndarray) -> np.ndarray:
+    """Inverse of rigid transforms (..., 4, 4): ``invert(T_a_b) = T_b_a``."""
+    T = np.asarray(T, dtype=float)
+    Rt = np.swapaxes(T[..., :3, :3], -1, -2)
+    return from_rt(Rt, -np.einsum("...ij,...j->...i", Rt, T[..., :3, 3]))
+
+
+def compose(*Ts: np.ndarray) -> np.ndarray:
+    """Product ``Ts[0] @ Ts[1] @ ...``; frames must chain: ``compose(T_a_b, T_b_c) = T_a_c``."""
+    out = np.asarray(Ts[0], dtype=float)
+    for T in Ts[1:]:
+        out = out @ np.asarray(T, dtype=float)
+    return out
+
+
+def transform_points(T_to_from: np.ndarray, points_from: np.ndarray) -> np.ndarray:
+    """Map points (N, 3) given in ``from`` into ``to``; returns a new (N, 3) array."""
+    T = np.asarray(T_to_from, dtype=float)
+    p = np.asarray(points_from, dtype=float)
+    return p @ T[:3, :3].T + T[:3, 3]
+
+
+def _left_jacobian(w: np.ndarray) -> np.ndarray:
+    theta = np.linalg.norm(w, axis=-1)[..., None, None]
+    K = hat(w)
+    small = theta < 1e-4
+    safe = np.where(small, 1.0, theta)
+    t2 = theta * theta
+    b = np.where(small, 0.5 - t2 / 24.0, (1.0 - np.cos(safe)) / (safe * safe))
+    c = np.where(small, 1.0 / 6.0 - t2 / 120.0, (safe - np.sin(safe)) / (safe**3))
+    return np.eye(3) + b * K + c * (K @ K)
+
+
+def se3_exp(xi: np.ndarray) -> np.ndarray:
+    """Transforms (..., 4, 4) from twists xi = (omega, v) (..., 6) (rotation first)."""
+    xi = np.asarray(xi, dtype=float)
+    w, v = xi[..., :3], xi[..., 3:]
+    return from_rt(so3_exp(w), np.einsum("...ij,...j->...i", _left_jacobian(w), v))
+
+
+def se3_log(T: np.ndarray) -> np.ndarray:
+    """Twists (..., 6) = (omega, v) with ``se3_exp(se3_log(T)) == T``."""
+    T = np.asarray(T, dtype=float)
+    w = so3_log(T[..., :3, :3])
+    V = _left_jacobian(w)
+    v = np.linalg.solve(V, T[..., :3, 3][..., None])[..., 0]
+    return np.concatenate([w, v], axis=-1)

@@ -1,0 +1,175 @@
+"""Writing a :class:`~rigcal.problem.result.CalibrationResult`.
+
+* ``calibration.yaml`` / JSON: :meth:`CalibrationResult.to_dict`, floats at full precision;
+* ``<sensor>.yaml``: the original tool's per-sensor file: ``target`` (the sensor's frame),
+  ``source`` (the reference sensor's frame) and ``transform``, the 4x4 ``T_sensor_reference``
+  with ``p_target = transform @ p_source``;
+* ``calibration.launch``: a ROS 1 launch file with one ``tf/static_transform_publisher`` per
+  non-reference sensor, publishing ``T_reference_sensor`` (the sensor's pose in the reference
+  frame) as ``x y z yaw pitch roll parent child period_ms`` with ``R = Rz(yaw) Ry(pitch) Rx(roll)``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+from pathlib import Path
+from typing import Any
+from xml.sax.saxutils import quoteattr
+
+import numpy as np
+import yaml
+
+import rigcal
+from rigcal.errors import InputError
+from rigcal.geometry.se3 import invert
+from rigcal.geometry.so3 import rpy_from_matrix
+from rigcal.io.atomic import atomic_write_text
+from rigcal.io.manifest import check_sensor_name
+from rigcal.problem.result import CalibrationResult
+
+RESULT_YAML_NAME = "calibration.yaml"
+LAUNCH_NAME = "calibration.launch"
+TF_PERIOD_MS = 100
+
+
+def _dump_yaml(data: Any) -> str:
+    return yaml.safe_dump(
+        data, sort_keys=False, default_flow_style=False, allow_unicode=True, width=10_000
+    )
+
+
+def result_to_yaml_text(result: CalibrationResult) -> str:
+    """``result.to_dict()`` as block-style YAML in field order; floats written exactly
+    (``repr``), NaN/inf as ``.nan``/``.inf``."""
+    return _dump_yaml(result.to_dict())
+
+
+def _json_safe(value: Any) -> Any:
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_safe(v) for v in value]
+    return value
+
+
+def result_to_json_text(result: CalibrationResult) -> str:
+    """``result.to_dict()`` as strict JSON (indented); NaN and infinities become ``null``,
+    integer dictionary keys (board indices) become strings."""
+    return json.dumps(_json_safe(result.to_dict()), indent=2, allow_nan=False) + "\n"
+
+
+def _sensor(result: CalibrationResult, name: str) -> Any:
+    try:
+        return result.sensors[name]
+    except KeyError:
+        raise InputError(
+            f"unknown sensor '{name}' (calibrated sensors: {', '.join(result.sensors)})"
+        ) from None
+
+
+def _reference_frame(result: CalibrationResult) -> str:
+    est = result.sensors.get(result.reference)
+    return est.frame_id if est is not None else result.reference
+
+
+def original_sensor_yaml_text(result: CalibrationResult, name: str) -> str:
+    """The original tool's YAML for sensor ``name``: ``target`` = its frame, ``source`` = the
+    reference frame, ``transform`` = ``T_sensor_reference`` (4x4 nested list)."""
+    est = _sensor(result, name)
+    T_sensor_reference = invert(np.asarray(est.T_reference_sensor, dtype=float))
+    return _dump_yaml(
+        {
+            "target": est.frame_id,
+            "source": _reference_frame(result),
+            "transform": [[float(v) for v in row] for row in T_sensor_reference],
+        }
+    )
+
+
+def _ros_frame(frame: str, sensor: str) -> str:
+    if not frame or re.search(r"\s", frame):
+        raise InputError(
+            f"sensor '{sensor}': frame_id {frame!r} cannot be used in a launch file "
+            "(must be non-empty without whitespace)"
+        )
+    return frame
+
+
+def _node_names(names: list[str]) -> dict[str, str]:
+    """Valid, unique ROS node names for sensors."""
+    out: dict[str, str] = {}
+    used: set[str] = set()
+    for name in names:
+        base = "rigcal_" + re.sub(r"[^A-Za-z0-9_]", "_", name)
+        node, n = base, 2
+        while node in used:
+            node, n = f"{base}_{n}", n + 1
+        used.add(node)
+        out[name] = node
+    return out
+
+
+def ros1_launch_text(result: CalibrationResult) -> str:
+    """A ROS 1 launch file publishing every non-reference sensor's pose in the reference frame."""
+    parent = _ros_frame(_reference_frame(result), result.reference)
+    others = [n for n in result.sensors if n != result.reference]
+    nodes = _node_names(others)
+    version = getattr(rigcal, "__version__", "unknown")
+    comment = (
+        f"written by rigcal {version}; reference sensor: {result.reference}. Each node "
+        "publishes T_reference_sensor (the sensor frame's pose in the reference frame) as "
+        "args = x y z [m] yaw pitch roll [rad] parent child period [ms], "
+        "with R = Rz(yaw) Ry(pitch) Rx(roll)."
+    )
+    lines = [
+        '<?xml version="1.0"?>',
+        "<launch>",
+        f"  <!-- {comment.replace('--', '- -')} -->",
+    ]
+    for name in others:
+        est = result.sensors[name]
+        child = _ros_frame(est.frame_id, name)
+        T = np.asarray(est.T_reference_sensor, dtype=float)
+        roll, pitch, yaw = rpy_from_matrix(T[:3, :3])
+        x, y, z = T[:3, 3]
+        numbers = " ".join("%.9f" % float(v) for v in (x, y, z, yaw, pitch, roll))
+        args = f"{numbers} {parent} {child} {TF_PERIOD_MS}"
+        lines.append(
+            f'  <node pkg="tf" type="static_transform_publisher" name={quoteattr(nodes[name])} '
+            f"args={quoteattr(args)}/>"
+        )
+    lines.append("</launch>")
+    return "\n".join(lines) + "\n"
+
+
+def write_results(result: CalibrationResult, out_dir: str | os.PathLike[str]) -> list[Path]:
+    """Write ``calibration.yaml``, ``<sensor>.yaml`` per sensor (original format) and
+    ``calibration.launch`` into ``out_dir`` (created if needed), each atomically.
+
+    Returns the written paths in that order. Texts are all built before anything is written.
+    """
+    out = Path(out_dir)
+    reserved = {Path(RESULT_YAML_NAME).stem.lower()}
+    lowered: dict[str, str] = {}
+    files: list[tuple[Path, str]] = [(out / RESULT_YAML_NAME, result_to_yaml_text(result))]
+    for name in result.sensors:
+        check_sensor_name(name, f"sensor '{name}'")
+        if name.lower() in lowered:
+            raise InputError(
+                f"sensors '{lowered[name.lower()]}' and '{name}' would write the same file on "
+                "a case-insensitive file system; rename one"
+            )
+        lowered[name.lower()] = name
+        if name.lower() in reserved:
+            raise InputError(
+                f"sensor '{name}': its file {name}.yaml would overwrite {RESULT_YAML_NAME}; "
+                "rename the sensor"
+            )
+        files.append((out / f"{name}.yaml", original_sensor_yaml_text(result, name)))
+    files.append((out / LAUNCH_NAME, ros1_launch_text(result)))
+    return [atomic_write_text(path, text) for path, text in files]

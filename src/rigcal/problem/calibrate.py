@@ -1,0 +1,298 @@
+"""End-to-end relative calibration: initialise, find outliers, solve a configuration,
+estimate noise (PSE), propagate uncertainty, evaluate. Returns a :class:`CalibrationResult`."""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Mapping
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+from rigcal.dataset import Dataset, SensorKind
+from rigcal.errors import ConfigError, ConvergenceError, RigcalError
+from rigcal.problem.configurations import (
+    MODES,
+    RADAR_PLANE_HELD,
+    board_block,
+    build_pairwise,
+    build_pse,
+    initial_board_poses,
+    pairs_for_mode,
+)
+from rigcal.problem.evaluate import anchor_errors, evaluate_pairs
+from rigcal.problem.initialise import default_reference, initial_poses
+from rigcal.problem.outliers import OutlierRule, find_outliers
+from rigcal.problem.pairs import all_pairs, pair_data
+from rigcal.problem.result import CalibrationResult, SensorEstimate
+from rigcal.problem.solver import Problem, Solution, solve
+from rigcal.problem.uncertainty import geometry_warnings, pose_std, weak_directions
+
+log = logging.getLogger(__name__)
+
+#: Cauchy scale [m] of the robust screening solve
+ROBUST_SCALE_M = 0.05
+#: PSE noise floor [m]: no sensor is assumed better than this
+NOISE_FLOOR_M = 1e-4
+
+
+@dataclass(frozen=True)
+class CalibrationOptions:
+    """How to calibrate.
+
+    mode: ``mcpe``, ``fcpe`` or ``pse``. reference: sensor whose frame is the common frame
+    (default: the dataset's, else the first lidar). detect_outliers: find and exclude bad
+    detections by consensus. hold_radar_plane: hold every 2D radar's z, roll and pitch at the
+    initial guess. initial: optional ``T_reference_sensor`` guesses (else Kabsch).
+    cross_validation_folds: k-fold leave-boards-out RMSE (0 = skip).
+    """
+
+    mode: str = "fcpe"
+    reference: str | None = None
+    detect_outliers: bool = True
+    hold_radar_plane: bool = False
+    initial: Mapping[str, np.ndarray] | None = None
+    cross_validation_folds: int = 0
+    max_noise_iterations: int = 100
+    noise_tolerance: float = 1e-4
+    outlier_rule: OutlierRule = field(default_factory=OutlierRule)
+    seed: int = 0
+
+
+@dataclass(frozen=True)
+class _Fit:
+    poses: dict[str, np.ndarray]
+    problem: Problem
+    solution: Solution
+    noise: dict[str, tuple[float, ...]]
+    noise_iterations: int
+    board_poses: dict[int, np.ndarray]
+
+
+def _check(dataset: Dataset, options: CalibrationOptions) -> str:
+    mode = str(options.mode).lower()
+    if mode not in MODES:
+        raise ConfigError(f"unknown mode '{options.mode}' (expected one of: {', '.join(MODES)})")
+    reference = options.reference or default_reference(dataset)
+    if reference not in dataset.names:
+        raise ConfigError(
+            f"reference sensor '{reference}' is not in the rig (sensors: {', '.join(dataset.names)})"
+        )
+    if mode == "pse" and dataset.sensor(reference).kind == SensorKind.RADAR:
+        raise ConfigError("PSE needs a 3D reference sensor (lidar, camera or 3D radar), not a 2D radar")
+    if options.cross_validation_folds < 0 or options.cross_validation_folds == 1:
+        raise ConfigError("cross_validation_folds must be 0 (off) or at least 2")
+    return reference
+
+
+def _fit(
+    dataset: Dataset,
+    mode: str,
+    reference: str,
+    poses0: Mapping[str, np.ndarray],
+    options: CalibrationOptions,
+) -> _Fit:
+    if mode in ("mcpe", "fcpe"):
+        prob = build_pairwise(
+            dataset, poses0, reference, pairs_for_mode(dataset, mode, reference), options.hold_radar_plane
+        )
+        sol = solve(prob)
+        return _Fit(dict(sol.poses), prob, sol, {}, 0, {})
+    # PSE with iterated diagonal noise
+    poses = {k: np.asarray(v) for k, v in poses0.items()}
+    boards = initial_board_poses(dataset, poses)
+    sigmas = {s.name: np.ones(2 if s.kind == SensorKind.RADAR else 3) for s in dataset.sensors}
+    converged_noise = False
+    sol = None
+    it = 0
+    for it in range(1, options.max_noise_iterations + 1):
+        prob = build_pse(dataset, poses, boards, reference, sigmas, options.hold_radar_plane)
+        sol = solve(prob)
+        if not sol.converged:
+            break
+        poses = {s: sol.poses[s] for s in dataset.names}
+        boards = {k: sol.poses[board_block(k)] for k in boards}
+        # variance component estimation: sigma^2 = sum(residual^2) / sum(redundancy) per sensor
+        # axis; unlike the plain mean square it does not collapse when board poses absorb noise
+        new = {}
+        for batch, r, red in zip(prob.observations, sol.residuals, sol.redundancy):
+            metric = r * batch.sigma  # back to metres
+            var = np.sum(metric**2, axis=0) / np.maximum(np.sum(red, axis=0), 1e-9)
+            new[batch.sensor] = np.maximum(np.sqrt(var), NOISE_FLOOR_M)
+        change = max(float(np.max(np.abs(new[s] / sigmas[s] - 1.0))) for s in new)
+        sigmas.update(new)
+        if change < options.noise_tolerance:
+            converged_noise = True
+            break
+    assert sol is not None
+    if sol.converged and not converged_noise:
+        raise ConvergenceError(
+            f"PSE: the per-sensor noise estimates did not converge in {options.max_noise_iterations} "
+            "iterations; try mode fcpe, or check the detections for outliers"
+        )
+    if converged_noise:
+        # final solve with the converged noise model (covariance consistent with it)
+        prob = build_pse(dataset, poses, boards, reference, sigmas, options.hold_radar_plane)
+        sol = solve(prob)
+        poses = {s: sol.poses[s] for s in dataset.names}
+        boards = {k: sol.poses[board_block(k)] for k in boards}
+    noise = {s: tuple(float(x) for x in v) for s, v in sigmas.items()}
+    return _Fit(poses, prob, sol, noise, it, boards)
+
+
+def _robust_screen(
+    dataset: Dataset, reference: str, poses0: Mapping[str, np.ndarray], options: CalibrationOptions
+) -> tuple[dict[str, set[int]], dict[str, np.ndarray]]:
+    prob = build_pairwise(dataset, poses0, reference, all_pairs(dataset), options.hold_radar_plane)
+    sol = solve(prob, loss="cauchy", loss_scale=ROBUST_SCALE_M)
+    poses = dict(sol.poses) if sol.converged else dict(poses0)
+    return find_outliers(dataset, poses, options.outlier_rule), poses
+
+
+def _cross_validation(
+    dataset: Dataset, mode: str, reference: str, poses: Mapping[str, np.ndarray], options: CalibrationOptions
+) -> dict[str, float]:
+    K = dataset.num_boards
+    usable = [k for k in range(K) if sum(bool(s.valid[k]) for s in dataset.sensors) >= 2]
+    folds = min(options.cross_validation_folds, len(usable))
+    if folds < 2:
+        return {}
+    rng = np.random.default_rng(options.seed)
+    order = rng.permutation(usable)
+    sq: dict[str, list[np.ndarray]] = {}
+    for f in range(folds):
+        test = order[f::folds]
+        train = np.setdiff1d(usable, test)
+        try:
+            fit = _fit(dataset.select_boards(train), mode, reference, poses, options)
+        except RigcalError as exc:
+            log.info("cross-validation fold %d skipped: %s", f, exc)
+            continue
+        for a, b in all_pairs(dataset):
+            p = pair_data(dataset, a, b, test)
+            if p is None or p.num_boards == 0:
+                continue
+            sq.setdefault(p.label, []).append(anchor_errors(p, fit.poses) ** 2)
+    return {k: float(np.sqrt(np.mean(np.concatenate(v)))) for k, v in sq.items()}
+
+
+def calibrate(dataset: Dataset, options: CalibrationOptions = CalibrationOptions()) -> CalibrationResult:
+    """Calibrate every sensor of ``dataset`` into the reference sensor's frame.
+
+    Raises ConfigError for bad options, InputError when sensors cannot be related, and
+    ConvergenceError when the solver does not converge (never a silent result).
+    """
+    t0 = time.perf_counter()
+    reference = _check(dataset, options)
+    mode = options.mode.lower()
+    ignored = {s.name: tuple(sorted(s.excluded)) for s in dataset.sensors if s.excluded}
+    with threadpool_limits(limits=1):
+        poses0 = initial_poses(
+            dataset, reference, robust=options.detect_outliers, given=options.initial
+        )
+        outliers: dict[str, set[int]] = {}
+        work = dataset
+        if options.detect_outliers:
+            outliers, poses0 = _robust_screen(dataset, reference, poses0, options)
+            work = dataset.with_excluded(outliers)
+        fit = _fit(work, mode, reference, poses0, options)
+        for _ in range(3):
+            if not (options.detect_outliers and fit.solution.converged):
+                break
+            more = find_outliers(work, fit.poses, options.outlier_rule)
+            if not more:
+                break
+            for s, ks in more.items():
+                outliers.setdefault(s, set()).update(ks)
+            work = dataset.with_excluded(outliers)
+            fit = _fit(work, mode, reference, fit.poses, options)
+        sol = fit.solution
+        if not sol.converged:
+            raise ConvergenceError(f"{mode.upper()} did not converge: {sol.status}")
+        rmse, per_board = evaluate_pairs(work, fit.poses)
+        cv = (
+            _cross_validation(work, mode, reference, fit.poses, options)
+            if options.cross_validation_folds
+            else {}
+        )
+    warnings = _warnings(work, mode, reference, fit, options)
+    sensors = {}
+    for s in dataset.sensors:
+        cov = sol.pose_covariance(s.name)
+        held = ()
+        if s.name == reference:
+            held = ("x", "y", "z", "roll", "pitch", "yaw")
+        elif options.hold_radar_plane and s.kind == SensorKind.RADAR:
+            held = RADAR_PLANE_HELD
+        sensors[s.name] = SensorEstimate(
+            name=s.name,
+            kind=s.kind,
+            frame_id=s.frame_id,
+            T_reference_sensor=fit.poses[s.name].copy(),
+            covariance=cov,
+            std=pose_std(fit.poses[s.name], cov),
+            held=held,
+        )
+    return CalibrationResult(
+        mode=mode,
+        reference=reference,
+        converged=True,
+        sensors=sensors,
+        rmse_m=rmse,
+        per_board_m=per_board,
+        outliers={s: tuple(sorted(ks)) for s, ks in outliers.items() if ks},
+        ignored=ignored,
+        warnings=tuple(warnings),
+        iterations=sol.iterations,
+        cost=sol.cost,
+        num_boards=dataset.num_boards,
+        noise_sigma_m=fit.noise,
+        noise_iterations=fit.noise_iterations,
+        board_poses=fit.board_poses,
+        cross_validation_rmse_m=cv,
+        solve_time_s=time.perf_counter() - t0,
+    )
+
+
+def _warnings(
+    dataset: Dataset, mode: str, reference: str, fit: _Fit, options: CalibrationOptions
+) -> list[str]:
+    sol = fit.solution
+    out: list[str] = []
+    pairs = all_pairs(dataset) if mode != "mcpe" else pairs_for_mode(dataset, mode, reference)
+    out += geometry_warnings(dataset, pairs)
+    if sol.rank_deficient:
+        out.append(
+            "the problem is rank deficient: some degrees of freedom are not determined by the "
+            "boards (their reported std is not meaningful)"
+        )
+    for s in dataset.sensors:
+        if s.name == reference:
+            continue
+        std = pose_std(fit.poses[s.name], sol.pose_covariance(s.name))
+        weak = weak_directions(std)
+        if s.kind == SensorKind.RADAR and not options.hold_radar_plane:
+            weak_plane = [w for w in weak if w.split(" ")[0] in ("z", "roll", "pitch")]
+            if weak_plane:
+                out.append(
+                    f"{s.name} (2D radar): {', '.join(weak_plane)} weakly observable - a 2D radar "
+                    "measures range and azimuth only; hold z, roll and pitch at a known mounting "
+                    "with --hold-radar-plane and an initial guess"
+                )
+            weak = [w for w in weak if w not in weak_plane]
+        if weak:
+            out.append(f"{s.name}: weakly observable: {', '.join(weak)}")
+    # boards pushed to the edge of a 2D radar's elevation field of view
+    for batch, c in zip(fit.problem.limits, sol.limit_residuals):
+        edge = int(np.sum(c > -math.radians(0.05)))
+        if edge:
+            deg = math.degrees(float(batch.max_elevation_rad[0]))
+            out.append(
+                f"{batch.observer[0]}: {edge} board(s) of {batch.label} sit on the edge of the "
+                f"±{deg:g} deg elevation field of view - the radar's tilt there is set by that "
+                "limit rather than by measurements; consider --hold-radar-plane"
+            )
+    return out

@@ -1,0 +1,115 @@
+"""The value a calibration returns, and its plain-data form for YAML/JSON."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from rigcal.dataset import SensorKind
+from rigcal.geometry.so3 import rpy_from_matrix
+
+STD_KEYS = ("x_m", "y_m", "z_m", "roll_deg", "pitch_deg", "yaw_deg")
+
+
+@dataclass(frozen=True)
+class SensorEstimate:
+    """One sensor's pose in the reference frame with its uncertainty.
+
+    ``covariance`` (6, 6) is over the right perturbation (omega, v) of ``T_reference_sensor``
+    (rotation [rad] first, then translation [m], both in the sensor frame); ``std`` gives the
+    standard deviations of x, y, z [m] and roll, pitch, yaw [deg] of ``T_reference_sensor``.
+    ``held`` lists degrees of freedom held at their prior (e.g. z, roll, pitch of a 2D radar).
+    """
+
+    name: str
+    kind: SensorKind
+    frame_id: str
+    T_reference_sensor: np.ndarray
+    covariance: np.ndarray
+    std: dict[str, float]
+    held: tuple[str, ...] = ()
+
+    @property
+    def xyz_m(self) -> np.ndarray:
+        return self.T_reference_sensor[:3, 3].copy()
+
+    @property
+    def rpy_deg(self) -> np.ndarray:
+        return np.degrees(rpy_from_matrix(self.T_reference_sensor[:3, :3]))
+
+
+@dataclass(frozen=True)
+class CalibrationResult:
+    """Everything a calibration run estimated and measured.
+
+    ``rmse_m`` keys are ``"a-b"`` sensor pairs (in dataset order); values are the root mean
+    squared distance over common detections as the original tool defines it (3D pairs over the
+    circle centres, radar pairs in 2D after projection). ``per_board_m[pair][k]`` is the error
+    of board k for that pair (RMS over its points). ``outliers[sensor]`` are the board indices
+    excluded for that sensor (found automatically or from an ignore file).
+    """
+
+    mode: str
+    reference: str
+    converged: bool
+    sensors: dict[str, SensorEstimate]
+    rmse_m: dict[str, float]
+    per_board_m: dict[str, dict[int, float]]
+    outliers: dict[str, tuple[int, ...]]
+    ignored: dict[str, tuple[int, ...]] = field(default_factory=dict)
+    warnings: tuple[str, ...] = ()
+    iterations: int = 0
+    cost: float = 0.0
+    num_boards: int = 0
+    noise_sigma_m: dict[str, tuple[float, ...]] = field(default_factory=dict)
+    noise_iterations: int = 0
+    board_poses: dict[int, np.ndarray] = field(default_factory=dict)
+    cross_validation_rmse_m: dict[str, float] = field(default_factory=dict)
+    solve_time_s: float = 0.0
+
+    def T(self, to: str, frm: str) -> np.ndarray:
+        """``T_to_from`` between two calibrated sensors (or the reference)."""
+        T_ref_to = self.sensors[to].T_reference_sensor
+        T_ref_from = self.sensors[frm].T_reference_sensor
+        return np.linalg.inv(T_ref_to) @ T_ref_from
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain, JSON/YAML-safe data (lists and floats)."""
+
+        def f(x: float) -> float:
+            return float(x)
+
+        return {
+            "reference": self.reference,
+            "mode": self.mode,
+            "converged": bool(self.converged),
+            "num_boards": int(self.num_boards),
+            "sensors": {
+                name: {
+                    "kind": est.kind.value,
+                    "frame_id": est.frame_id,
+                    "T_reference_sensor": [[f(v) for v in row] for row in est.T_reference_sensor],
+                    "xyz_m": [f(v) for v in est.xyz_m],
+                    "rpy_deg": [f(v) for v in est.rpy_deg],
+                    "std": {k: f(est.std[k]) for k in STD_KEYS},
+                    "covariance": [[f(v) for v in row] for row in est.covariance],
+                    "held": list(est.held),
+                }
+                for name, est in self.sensors.items()
+            },
+            "rmse_m": {k: f(v) for k, v in self.rmse_m.items()},
+            "cross_validation_rmse_m": {k: f(v) for k, v in self.cross_validation_rmse_m.items()},
+            "per_board_m": {
+                pair: {int(k): f(v) for k, v in errs.items()} for pair, errs in self.per_board_m.items()
+            },
+            "outliers": {k: [int(b) for b in v] for k, v in self.outliers.items()},
+            "ignored": {k: [int(b) for b in v] for k, v in self.ignored.items()},
+            "noise_sigma_m": {k: [f(s) for s in v] for k, v in self.noise_sigma_m.items()},
+            "noise_iterations": int(self.noise_iterations),
+            "warnings": list(self.warnings),
+            "iterations": int(self.iterations),
+            "cost": f(self.cost),
+            "solve_time_s": f(self.solve_time_s),
+        }

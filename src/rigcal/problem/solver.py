@@ -1,0 +1,575 @@
+"""The calibration problem as data, and a Levenberg-Marquardt solver on SE(3).
+
+A :class:`Problem` is a set of named pose blocks (``T_W_name``; each with a mask of which of its
+six local degrees of freedom are free) and batches of residuals bound to those names by value.
+Configurations (MCPE, FCPE, PSE, ...) differ only in which blocks and batches they create.
+:func:`solve` returns a :class:`Solution` value; it never prints.
+
+Sparsity follows from the bindings: each residual row touches at most two pose blocks. Small
+problems use dense normal equations, large ones scipy.sparse.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field, replace
+from typing import Mapping
+
+import numpy as np
+import scipy.linalg
+import scipy.sparse
+import scipy.sparse.linalg
+
+from rigcal.errors import ConfigError
+from rigcal.geometry.se3 import se3_exp
+from rigcal.problem.residuals import (
+    MODEL_POINT,
+    MODEL_RADAR2D,
+    elevation_limit_residuals,
+    observation_residuals,
+)
+
+log = logging.getLogger(__name__)
+
+#: local degrees of freedom of a pose block, in tangent order (rotation first)
+DOF_NAMES = ("roll", "pitch", "yaw", "x", "y", "z")
+ALL_FREE = (True,) * 6
+SPARSE_ABOVE = 600  # free parameters above which sparse linear algebra is used
+LOSSES = ("linear", "huber", "cauchy")
+
+
+@dataclass(frozen=True)
+class PoseBlock:
+    """A pose ``T_W_name`` (4, 4) to estimate; ``free[i]`` says whether local DOF i may move."""
+
+    name: str
+    T: np.ndarray
+    free: tuple[bool, ...] = ALL_FREE
+
+    def __post_init__(self) -> None:
+        T = np.array(self.T, dtype=float)
+        T.setflags(write=False)
+        object.__setattr__(self, "T", T)
+        object.__setattr__(self, "free", tuple(bool(f) for f in self.free))
+
+
+@dataclass(frozen=True)
+class Observations:
+    """A batch of n point observations (see :mod:`rigcal.problem.residuals`).
+
+    Item i: point ``points[i]`` (3,) fixed in pose block ``frame[i]`` is measured by the sensor
+    whose pose block is ``observer[i]`` as ``measured[i]`` (d,) with std ``sigma[i]`` (d,).
+    ``board[i]`` is the board placement the item belongs to; ``label`` names the batch
+    (a sensor pair such as ``"lidar1-camera1"`` or a sensor); ``sensor`` names the observer.
+    """
+
+    label: str
+    sensor: str
+    model: str
+    frame: tuple[str, ...]
+    observer: tuple[str, ...]
+    points: np.ndarray
+    measured: np.ndarray
+    sigma: np.ndarray
+    board: np.ndarray
+
+    def __post_init__(self) -> None:
+        if self.model not in (MODEL_POINT, MODEL_RADAR2D):
+            raise ConfigError(f"unknown measurement model {self.model!r}")
+        n = len(self.frame)
+        d = 3 if self.model == MODEL_POINT else 2
+        for name, arr, shape in (
+            ("points", self.points, (n, 3)),
+            ("measured", self.measured, (n, d)),
+            ("sigma", self.sigma, (n, d)),
+            ("board", self.board, (n,)),
+        ):
+            a = np.array(arr, dtype=int if name == "board" else float)
+            if a.shape != shape:
+                raise ConfigError(f"observations '{self.label}': {name} shape {a.shape} != {shape}")
+            a.setflags(write=False)
+            object.__setattr__(self, name, a)
+        object.__setattr__(self, "frame", tuple(self.frame))
+        object.__setattr__(self, "observer", tuple(self.observer))
+
+    @property
+    def size(self) -> int:
+        return len(self.frame)
+
+    @property
+    def dim(self) -> int:
+        return 3 if self.model == MODEL_POINT else 2
+
+    def with_sigma(self, sigma: np.ndarray) -> "Observations":
+        return replace(self, sigma=np.broadcast_to(sigma, self.measured.shape).copy())
+
+
+@dataclass(frozen=True)
+class ElevationLimits:
+    """Hinge constraints |elevation(point in observer)| <= max_elevation_rad (paper eq. 4)."""
+
+    label: str
+    frame: tuple[str, ...]
+    observer: tuple[str, ...]
+    points: np.ndarray
+    max_elevation_rad: np.ndarray
+    board: np.ndarray
+
+    @property
+    def size(self) -> int:
+        return len(self.frame)
+
+
+@dataclass(frozen=True)
+class Problem:
+    poses: tuple[PoseBlock, ...]
+    observations: tuple[Observations, ...]
+    limits: tuple[ElevationLimits, ...] = ()
+    #: largest violation of a field-of-view constraint accepted at the solution [rad]
+    fov_tolerance_rad: float = 1e-7
+
+    def __post_init__(self) -> None:
+        names = [p.name for p in self.poses]
+        if len(set(names)) != len(names):
+            raise ConfigError(f"duplicate pose blocks: {names}")
+        known = set(names)
+        for batch in (*self.observations, *self.limits):
+            missing = (set(batch.frame) | set(batch.observer)) - known
+            if missing:
+                raise ConfigError(f"batch '{batch.label}' refers to unknown poses {sorted(missing)}")
+
+    @property
+    def pose_names(self) -> tuple[str, ...]:
+        return tuple(p.name for p in self.poses)
+
+    def pose(self, name: str) -> PoseBlock:
+        for p in self.poses:
+            if p.name == name:
+                return p
+        raise KeyError(name)
+
+    def with_poses(self, values: Mapping[str, np.ndarray]) -> "Problem":
+        return replace(
+            self,
+            poses=tuple(replace(p, T=values[p.name]) if p.name in values else p for p in self.poses),
+        )
+
+    def with_observations(self, observations: tuple[Observations, ...]) -> "Problem":
+        return replace(self, observations=tuple(observations))
+
+
+@dataclass(frozen=True)
+class Solution:
+    """What :func:`solve` found.
+
+    ``covariance`` is over the free local DOFs (``columns`` maps pose name -> 6 column indices,
+    -1 for held DOFs), scaled by the a-posteriori variance factor ``sigma0_sq``.
+    ``residuals[i]`` are the whitened residuals (n, d) of ``problem.observations[i]``.
+    """
+
+    poses: dict[str, np.ndarray]
+    converged: bool
+    status: str
+    iterations: int
+    cost: float
+    covariance: np.ndarray
+    columns: dict[str, np.ndarray]
+    residuals: tuple[np.ndarray, ...]
+    limit_residuals: tuple[np.ndarray, ...]
+    sigma0_sq: float
+    dof: int
+    gradient_norm: float
+    rank_deficient: bool = False
+    #: per observation batch, (n, d) redundancy numbers 1 - h_ii (leverage) of each residual
+    redundancy: tuple[np.ndarray, ...] = ()
+    extra: dict = field(default_factory=dict)
+
+    def pose_covariance(self, name: str) -> np.ndarray:
+        """(6, 6) covariance of a pose's local perturbation; zero rows/cols for held DOFs."""
+        cols = self.columns[name]
+        out = np.zeros((6, 6))
+        idx = np.flatnonzero(cols >= 0)
+        if idx.size:
+            c = cols[idx]
+            out[np.ix_(idx, idx)] = self.covariance[np.ix_(c, c)]
+        return out
+
+
+class _Layout:
+    """Index bookkeeping shared by every evaluation of one problem."""
+
+    def __init__(self, problem: Problem):
+        self.names = problem.pose_names
+        self.index = {n: i for i, n in enumerate(self.names)}
+        cols = -np.ones((len(self.names), 6), dtype=int)
+        k = 0
+        for i, p in enumerate(problem.poses):
+            for j in range(6):
+                if p.free[j]:
+                    cols[i, j] = k
+                    k += 1
+        self.cols = cols
+        self.n_free = k
+        self.obs_idx = [
+            (
+                np.array([self.index[f] for f in b.frame], dtype=int),
+                np.array([self.index[o] for o in b.observer], dtype=int),
+            )
+            for b in problem.observations
+        ]
+        self.lim_idx = [
+            (
+                np.array([self.index[f] for f in b.frame], dtype=int),
+                np.array([self.index[o] for o in b.observer], dtype=int),
+            )
+            for b in problem.limits
+        ]
+        self.m_obs = sum(b.size * b.dim for b in problem.observations)
+        self.m = self.m_obs + sum(b.size for b in problem.limits)
+
+
+def _robust(s: np.ndarray, loss: str, c: float) -> tuple[np.ndarray, np.ndarray]:
+    """rho(s) and rho'(s) for squared norms s."""
+    if loss == "linear":
+        return s, np.ones_like(s)
+    c2 = c * c
+    if loss == "huber":
+        root = np.sqrt(s)
+        inside = s <= c2
+        return np.where(inside, s, 2 * c * root - c2), np.where(inside, 1.0, c / np.maximum(root, 1e-300))
+    if loss == "cauchy":
+        return c2 * np.log1p(s / c2), 1.0 / (1.0 + s / c2)
+    raise ConfigError(f"unknown robust loss {loss!r} (expected one of {LOSSES})")
+
+
+def _evaluate(problem: Problem, layout: _Layout, T: np.ndarray, loss: str, c: float, want_jac: bool):
+    """Robustly weighted residual vector, Jacobian and cost of the observations."""
+    r_parts, rows, cols, vals = [], [], [], []
+    raw = []
+    cost = 0.0
+    row0 = 0
+    for batch, (ia, ib) in zip(problem.observations, layout.obs_idx):
+        if batch.size == 0:
+            raw.append(np.zeros((0, batch.dim)))
+            continue
+        r, JA, JB = observation_residuals(
+            T[ia], T[ib], batch.points, batch.measured, batch.sigma, batch.model
+        )
+        raw.append(r)
+        s = np.sum(r * r, axis=1)
+        rho, drho = _robust(s, loss, c)
+        cost += 0.5 * float(np.sum(rho))
+        w = np.sqrt(drho)[:, None]
+        r_parts.append((r * w).ravel())
+        if want_jac:
+            n, d = r.shape
+            rr = row0 + np.arange(n * d).reshape(n, d)
+            for J, idx in ((JA, ia), (JB, ib)):
+                cc = layout.cols[idx][:, None, :]  # (n, 1, 6)
+                keep = np.broadcast_to(cc >= 0, (n, d, 6))
+                rows.append(np.broadcast_to(rr[:, :, None], (n, d, 6))[keep])
+                cols.append(np.broadcast_to(cc, (n, d, 6))[keep])
+                vals.append((J * w[:, :, None])[keep])
+        row0 += r.size
+    rvec = np.concatenate(r_parts) if r_parts else np.zeros(0)
+    J = None
+    if want_jac:
+        J = _assemble(rows, cols, vals, rvec.size, layout.n_free)
+    return rvec, J, cost, raw
+
+
+def _assemble(rows, cols, vals, m, n):
+    J = scipy.sparse.coo_matrix(
+        (
+            np.concatenate(vals) if vals else np.zeros(0),
+            (
+                np.concatenate(rows) if rows else np.zeros(0, int),
+                np.concatenate(cols) if cols else np.zeros(0, int),
+            ),
+        ),
+        shape=(m, n),
+    )
+    return J.toarray() if n <= SPARSE_ABOVE else J.tocsr()
+
+
+def _constraints(problem: Problem, layout: _Layout, T: np.ndarray, want_jac: bool = True):
+    """Field-of-view constraint values c = |elevation| - max (<= 0 is feasible) and dc/dx."""
+    values, rows, cols, vals = [], [], [], []
+    row0 = 0
+    big = 1e6  # shift so the hinge is always active: gives |e| - max and its gradient
+    for batch, (ia, ib) in zip(problem.limits, layout.lim_idx):
+        if batch.size == 0:
+            continue
+        r, JA, JB = elevation_limit_residuals(
+            T[ia], T[ib], batch.points, batch.max_elevation_rad - big, 1.0
+        )
+        values.append(r[:, 0] - big)
+        if want_jac:
+            n = r.shape[0]
+            rr = row0 + np.arange(n)
+            for J, idx in ((JA, ia), (JB, ib)):
+                cc = layout.cols[idx]
+                keep = cc >= 0
+                rows.append(np.broadcast_to(rr[:, None], (n, 6))[keep])
+                cols.append(cc[keep])
+                vals.append(J[:, 0, :][keep])
+        row0 += batch.size
+    c = np.concatenate(values) if values else np.zeros(0)
+    G = None
+    if want_jac:
+        G = _assemble(rows, cols, vals, c.size, layout.n_free)
+        if scipy.sparse.issparse(G):
+            G = G.toarray()
+    return c, G
+
+
+def _retract(T: np.ndarray, layout: _Layout, delta: np.ndarray) -> np.ndarray:
+    xi = np.zeros((T.shape[0], 6))
+    mask = layout.cols >= 0
+    xi[mask] = delta[layout.cols[mask]]
+    moved = np.flatnonzero(np.any(mask, axis=1))
+    out = T.copy()
+    out[moved] = T[moved] @ se3_exp(xi[moved])
+    return out
+
+
+def _normal(J, r):
+    if scipy.sparse.issparse(J):
+        A = (J.T @ J).tocsc()
+        g = J.T @ r
+        return A, np.asarray(g).ravel()
+    return J.T @ J, J.T @ r
+
+
+def _constrained_step(M, g, c, G, active_tol=1e-9, max_rounds=60):
+    """argmin 0.5 d'Md + g'd  s.t.  c + G d <= 0 (small active-set QP, solved through one
+    factorisation of M and the Schur complement of the active constraints).
+
+    Returns (d, active mask, multipliers)."""
+    n = g.size
+    if scipy.sparse.issparse(M):
+        lu = scipy.sparse.linalg.splu(M.tocsc())
+        solve_m = lu.solve
+    else:
+        try:
+            cf = scipy.linalg.cho_factor(M, check_finite=False)
+            solve_m = lambda b: scipy.linalg.cho_solve(cf, b, check_finite=False)  # noqa: E731
+        except np.linalg.LinAlgError:
+            pinv = np.linalg.pinv(M)
+            solve_m = lambda b: pinv @ b  # noqa: E731
+    d0 = -solve_m(g)
+    if c.size == 0:
+        return d0, np.zeros(0, dtype=bool), np.zeros(0)
+    MiGt = solve_m(G.T) if G.size else np.zeros((n, 0))
+    active = c >= -active_tol
+    seen = set()
+    d, nu = d0, np.zeros(0)
+    for _ in range(max_rounds):
+        idx = np.flatnonzero(active)
+        if idx.size:
+            S = G[idx] @ MiGt[:, idx]
+            nu = np.linalg.lstsq(S, c[idx] + G[idx] @ d0, rcond=None)[0]
+            d = d0 - MiGt[:, idx] @ nu
+        else:
+            d, nu = d0, np.zeros(0)
+        key = tuple(idx)
+        if key in seen:
+            break
+        seen.add(key)
+        if nu.size and nu.min() < -1e-12 * max(1.0, float(np.abs(nu).max())):
+            active[idx[int(np.argmin(nu))]] = False
+            continue
+        slack = c + G @ d
+        slack[active] = -np.inf
+        worst = int(np.argmax(slack))
+        if slack[worst] > 1e-12:
+            active[worst] = True
+            continue
+        break
+    mult = np.zeros(c.size)
+    if nu.size == int(active.sum()):
+        mult[active] = np.maximum(nu, 0.0)
+    return d, active, mult
+
+
+def _constraint_hessian(problem, layout, T, mult, h=1e-6):
+    """sum_i mult_i * Hessian(c_i) by finite differences of the weighted constraint gradient."""
+    n = layout.n_free
+    H = np.zeros((n, n))
+    if not np.any(mult > 0):
+        return H
+    _, G0 = _constraints(problem, layout, T)
+    g0 = G0.T @ mult
+    cols = np.flatnonzero(np.any(G0[mult > 0] != 0, axis=0))
+    for j in cols:
+        e = np.zeros(n)
+        e[j] = h
+        _, Gj = _constraints(problem, layout, _retract(T, layout, e))
+        H[:, j] = (Gj.T @ mult - g0) / h
+    H = 0.5 * (H + H.T)
+    return H
+
+
+def _solve_dense_or_sparse(M, rhs):
+    if scipy.sparse.issparse(M):
+        return scipy.sparse.linalg.spsolve(M.tocsc(), rhs)
+    try:
+        cf = scipy.linalg.cho_factor(M, check_finite=False)
+        return scipy.linalg.cho_solve(cf, rhs, check_finite=False)
+    except np.linalg.LinAlgError:
+        return np.linalg.lstsq(M, rhs, rcond=None)[0]
+
+
+def _damped(A, lam):
+    if scipy.sparse.issparse(A):
+        d = A.diagonal()
+        return (A + scipy.sparse.diags(lam * np.maximum(d, 1e-12 * max(d.max(), 1e-300)) + 1e-300)).tocsc()
+    d = np.diag(A)
+    dmax = max(float(d.max()) if d.size else 0.0, 1e-300)
+    return A + np.diag(lam * np.maximum(d, 1e-12 * dmax) + 1e-300)
+
+
+def _lm(problem, layout, T, loss, loss_scale, max_iterations, ftol, xtol, gtol, fov_tol):
+    """Levenberg-Marquardt with linearised field-of-view constraints (an active-set QP per
+    step, l1 merit function). Returns (T, iterations, converged, status, active mask)."""
+
+    def merit(cost, c, rho):
+        return cost + rho * float(np.sum(np.maximum(c, 0.0)))
+
+    r, J, cost, _ = _evaluate(problem, layout, T, loss, loss_scale, True)
+    c, G = _constraints(problem, layout, T)
+    A, g = _normal(J, r)
+    lam = 1e-6
+    rho = 1.0
+    active = np.zeros(c.size, dtype=bool)
+    mult = np.zeros(c.size)
+    it = 0
+    for it in range(1, max_iterations + 1):
+        # Hessian of the Lagrangian: Gauss-Newton part plus the curvature of active constraints
+        Hc = _constraint_hessian(problem, layout, T, mult) if c.size else None
+        AL = A if Hc is None or not np.any(Hc) else (
+            (A + scipy.sparse.csr_matrix(Hc)) if scipy.sparse.issparse(A) else A + Hc
+        )
+        feasible = c.size == 0 or float(np.max(c)) <= fov_tol
+        if c.size == 0:
+            gnorm = float(np.max(np.abs(g))) if g.size else 0.0
+            if gnorm <= gtol * max(1.0, cost):
+                return T, it - 1, True, "gradient below tolerance", active
+        accepted = False
+        while lam < 1e16:
+            delta, act, mult_new = _constrained_step(_damped(AL, lam), g, c, G)
+            step = float(np.linalg.norm(delta))
+            T_new = _retract(T, layout, delta)
+            cost_new = _evaluate(problem, layout, T_new, loss, loss_scale, False)[2]
+            c_new = _constraints(problem, layout, T_new, want_jac=False)[0]
+            if c.size:
+                # penalty weight above the gradient's pull on the active constraints
+                rho = max(rho, 10.0 * float(np.linalg.norm(g)) / max(1e-12, float(np.min(np.linalg.norm(G, axis=1)))))
+            m_old, m_new = merit(cost, c, rho), merit(cost_new, c_new, rho)
+            if m_new < m_old or (m_new <= m_old and step <= xtol):
+                accepted = True
+                rel = (m_old - m_new) / max(m_old, 1e-300)
+                T, cost, c, active, mult = T_new, cost_new, c_new, act, mult_new
+                lam = max(lam / 10.0, 1e-12)
+                break
+            predicted = -(g @ delta + 0.5 * delta @ (A @ delta))
+            if (predicted <= ftol * max(cost, 1e-300) or step <= xtol) and feasible:
+                break
+            lam *= 10.0
+        if not accepted:
+            if feasible:
+                return T, it, True, "no further decrease possible (at a minimum)", active
+            return T, it, False, "cannot satisfy the field-of-view constraints", active
+        r, J, cost, _ = _evaluate(problem, layout, T, loss, loss_scale, True)
+        c, G = _constraints(problem, layout, T)
+        A, g = _normal(J, r)
+        feasible = c.size == 0 or float(np.max(c)) <= fov_tol
+        if feasible and rel <= ftol:
+            return T, it, True, "relative cost change below tolerance", active
+        if feasible and step <= xtol * (1.0 + float(np.linalg.norm(T[:, :3, 3]))):
+            return T, it, True, "step below tolerance", active
+    return T, it, False, "iteration limit reached", active
+
+
+def solve(
+    problem: Problem,
+    *,
+    loss: str = "linear",
+    loss_scale: float = 1.0,
+    max_iterations: int = 200,
+    ftol: float = 1e-10,
+    xtol: float = 1e-12,
+    gtol: float = 1e-10,
+) -> Solution:
+    """Minimise the problem's cost with Levenberg-Marquardt on the pose manifold, subject to the
+    field-of-view limits (paper eq. 4) as inequality constraints.
+
+    Returns a :class:`Solution`; ``converged`` is False when the iteration limit was reached or
+    the constraints could not be met.
+    """
+    if loss not in LOSSES:
+        raise ConfigError(f"unknown robust loss {loss!r} (expected one of {LOSSES})")
+    layout = _Layout(problem)
+    T = np.stack([p.T for p in problem.poses]).astype(float)
+    if layout.n_free == 0:
+        raise ConfigError("nothing to estimate: every pose is held fixed")
+    T, it, converged, status, active = _lm(
+        problem, layout, T, loss, loss_scale, max_iterations, ftol, xtol, gtol, problem.fov_tolerance_rad
+    )
+    r, J, cost, raw = _evaluate(problem, layout, T, loss, loss_scale, True)
+    A, g = _normal(J, r)
+    c, G = _constraints(problem, layout, T)
+    gnorm = float(np.max(np.abs(g))) if g.size else 0.0
+    lim_raw = []
+    off = 0
+    for b in problem.limits:
+        lim_raw.append(c[off : off + b.size].copy())
+        off += b.size
+    # covariance from the final Jacobian (robust weights at the solution)
+    A_dense = A.toarray() if scipy.sparse.issparse(A) else A
+    n = layout.n_free
+    binding = np.flatnonzero(c >= -1e-6) if c.size else np.zeros(0, dtype=int)
+    dof = layout.m_obs - n + int(binding.size)
+    rank_deficient = False
+    if binding.size:
+        # covariance on the manifold of binding constraints: Z (Z' A Z)^-1 Z'
+        Z = scipy.linalg.null_space(G[binding])
+        inner = Z.T @ A_dense @ Z
+        cov = Z @ np.linalg.pinv(inner, rcond=1e-12) @ Z.T
+        rank_deficient = np.linalg.matrix_rank(inner) < inner.shape[0]
+    else:
+        try:
+            cf = scipy.linalg.cho_factor(A_dense, check_finite=False)
+            cov = scipy.linalg.cho_solve(cf, np.eye(n), check_finite=False)
+            if not np.all(np.isfinite(cov)):
+                raise np.linalg.LinAlgError
+        except (np.linalg.LinAlgError, ValueError):
+            cov = np.linalg.pinv(A_dense, rcond=1e-12)
+            rank_deficient = True
+    # redundancy numbers: 1 - diag(J C J') in the whitened space (unscaled covariance)
+    Jd = J.toarray() if scipy.sparse.issparse(J) else J
+    lev = np.einsum("ij,ij->i", Jd @ cov, Jd)
+    redundancy = []
+    off = 0
+    for x in raw:
+        redundancy.append(np.clip(1.0 - lev[off : off + x.size], 0.0, 1.0).reshape(x.shape))
+        off += x.size
+    obs_sq = float(sum(np.sum(x * x) for x in raw))
+    sigma0_sq = obs_sq / dof if dof > 0 else 1.0
+    columns = {name: layout.cols[i].copy() for i, name in enumerate(layout.names)}
+    return Solution(
+        poses={name: T[i].copy() for i, name in enumerate(layout.names)},
+        converged=converged,
+        status=status,
+        iterations=it,
+        cost=0.5 * obs_sq,
+        covariance=cov * sigma0_sq,
+        columns=columns,
+        residuals=tuple(raw),
+        limit_residuals=tuple(lim_raw),
+        sigma0_sq=sigma0_sq,
+        dof=dof,
+        gradient_norm=gnorm,
+        rank_deficient=rank_deficient,
+        redundancy=tuple(redundancy),
+    )

@@ -1,0 +1,90 @@
+"""From a pose covariance to standard deviations a person reads, and observability warnings."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from rigcal.dataset import Dataset, SensorKind
+from rigcal.geometry.se3 import se3_exp
+from rigcal.geometry.so3 import rpy_from_matrix
+from rigcal.problem.pairs import all_pairs, pair_data, reflector_points
+from rigcal.problem.result import STD_KEYS
+
+#: std above which a direction is reported as weakly observable
+WEAK_TRANSLATION_M = 0.05
+WEAK_ROTATION_DEG = 1.0
+
+
+def _xyz_rpy(T: np.ndarray) -> np.ndarray:
+    return np.concatenate([T[:3, 3], rpy_from_matrix(T[:3, :3])])
+
+
+def pose_std(T: np.ndarray, covariance: np.ndarray) -> dict[str, float]:
+    """Std of x, y, z [m] and roll, pitch, yaw [deg] of ``T`` given the (6, 6) covariance of its
+    right perturbation (first-order propagation through a central-difference Jacobian)."""
+    eps = 1e-6
+    J = np.zeros((6, 6))
+    for i in range(6):
+        d = np.zeros(6)
+        d[i] = eps
+        diff = _xyz_rpy(T @ se3_exp(d)) - _xyz_rpy(T @ se3_exp(-d))
+        diff[3:] = (diff[3:] + np.pi) % (2 * np.pi) - np.pi
+        J[:, i] = diff / (2 * eps)
+    C = J @ covariance @ J.T
+    std = np.sqrt(np.maximum(np.diag(C), 0.0))
+    std[3:] = np.degrees(std[3:])
+    return dict(zip(STD_KEYS, (float(s) for s in std)))
+
+
+def weak_directions(std: dict[str, float]) -> list[str]:
+    out = []
+    for k in ("x_m", "y_m", "z_m"):
+        if std[k] > WEAK_TRANSLATION_M:
+            out.append(f"{k[0]} (std {std[k] * 1000:.0f} mm)")
+    for k in ("roll_deg", "pitch_deg", "yaw_deg"):
+        if std[k] > WEAK_ROTATION_DEG:
+            out.append(f"{k[:-4]} (std {std[k]:.2f} deg)")
+    return out
+
+
+def geometry_warnings(dataset: Dataset, pairs: list[tuple[str, str]]) -> list[str]:
+    """Warnings about board layouts that leave a pair weakly determined."""
+    out = []
+    for a, b in pairs:
+        p = pair_data(dataset, a, b)
+        if p is None:
+            continue
+        if p.num_boards < 3:
+            out.append(
+                f"pair {p.label} shares only {p.num_boards} board(s); use at least 3 (better 10+)"
+            )
+            continue
+        frame = dataset.sensor(p.frame)
+        refl = reflector_points(frame, dataset)[p.boards]
+        sv = np.linalg.svd(refl - refl.mean(axis=0), compute_uv=False)
+        if sv[1] < 0.10 * np.sqrt(len(refl)):
+            out.append(
+                f"pair {p.label}: the {p.num_boards} shared boards are nearly collinear "
+                "(rotation about their line is weakly determined); spread boards left-right and "
+                "near-far"
+            )
+        elif frame.kind.is_point_cloud and p.per_board == 4:
+            from rigcal.targets.circle_board import board_normals
+
+            n = board_normals(frame.points[p.boards])
+            spread = np.degrees(np.arccos(np.clip(np.min(n @ n.mean(axis=0) / np.linalg.norm(n.mean(axis=0))), -1, 1)))
+            if sv[2] < 0.05 * np.sqrt(len(refl)) and spread < 5.0:
+                out.append(
+                    f"pair {p.label}: the shared boards lie nearly in one plane with parallel "
+                    "normals; vary board heights or tilts"
+                )
+    return out
+
+
+def radar_fov_edge_boards(values: np.ndarray, tol_rad: float = 1e-4) -> int:
+    """How many boards sit on the edge of a 2D radar's elevation field of view."""
+    return int(np.sum(values > -tol_rad))
+
+
+__all__ = ["geometry_warnings", "pose_std", "radar_fov_edge_boards", "weak_directions"]
+_ = SensorKind

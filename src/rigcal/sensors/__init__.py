@@ -1,0 +1,1 @@
+"""Sensor measurement models (one module per model)."""

@@ -1,0 +1,80 @@
+"""Atomic writes: complete files or nothing, parents created, temp files cleaned up."""
+
+from __future__ import annotations
+
+import os
+import stat
+
+import pytest
+
+from rigcal.errors import InputError
+from rigcal.io import atomic
+from rigcal.io.atomic import atomic_write_bytes, atomic_write_text
+
+
+def test_text_creates_parents_and_returns_path(tmp_path):
+    target = tmp_path / "a" / "b" / "out.txt"
+    got = atomic_write_text(target, "héllo\nworld\n")
+    assert got == target
+    assert target.read_bytes() == "héllo\nworld\n".encode("utf-8")
+    assert sorted(p.name for p in target.parent.iterdir()) == ["out.txt"]
+
+
+def test_bytes_round_trip_and_overwrite(tmp_path):
+    target = tmp_path / "data.bin"
+    atomic_write_bytes(str(target), b"\x00\x01old")
+    atomic_write_bytes(target, b"\xffnew")
+    assert target.read_bytes() == b"\xffnew"
+    assert [p.name for p in tmp_path.iterdir()] == ["data.bin"]
+
+
+def test_overwrite_keeps_mode(tmp_path):
+    target = tmp_path / "f.txt"
+    target.write_text("old")
+    os.chmod(target, 0o640)
+    atomic_write_text(target, "new")
+    assert stat.S_IMODE(target.stat().st_mode) == 0o640
+    assert target.read_text() == "new"
+
+
+def test_failed_replace_leaves_old_file_and_no_temp(tmp_path, monkeypatch):
+    target = tmp_path / "f.txt"
+    target.write_text("old")
+
+    def boom(src, dst):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(atomic.os, "replace", boom)
+    with pytest.raises(InputError, match=r"f\.txt: cannot write file: No space left"):
+        atomic_write_text(target, "new")
+    assert target.read_text() == "old"
+    assert [p.name for p in tmp_path.iterdir()] == ["f.txt"]
+
+
+def test_non_os_error_is_reraised_and_temp_removed(tmp_path, monkeypatch):
+    def interrupted(fd):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(atomic.os, "fsync", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        atomic_write_text(tmp_path / "f.txt", "new")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_target_is_directory(tmp_path):
+    (tmp_path / "d").mkdir()
+    with pytest.raises(InputError, match=r"d: is a directory"):
+        atomic_write_text(tmp_path / "d", "x")
+
+
+def test_parent_is_a_file(tmp_path):
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(InputError, match=r"file: cannot create output directory"):
+        atomic_write_text(tmp_path / "file" / "out.txt", "x")
+
+
+def test_wrong_types():
+    with pytest.raises(TypeError, match="must be str"):
+        atomic_write_text("x", b"bytes")  # type: ignore[arg-type]
+    with pytest.raises(TypeError, match="must be bytes"):
+        atomic_write_bytes("x", "text")  # type: ignore[arg-type]

@@ -1,0 +1,1 @@
+"""The ``rigcal`` command: a thin shell over the library."""

@@ -1,0 +1,265 @@
+"""``rigcal`` command line: parse -> run(args) -> int. Known errors become one line, exit 1."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from rigcal import __version__
+from rigcal.errors import RigcalError
+
+EPILOG_CALIBRATE = """examples:
+  rigcal calibrate rig.yaml --mode fcpe --out results/
+  rigcal calibrate rig.yaml --mode pse --reference lidar1 --out results/ --json
+  rigcal calibrate --lidar lidar.csv --camera camera.csv --radar radar.csv --mode fcpe --out results/
+"""
+
+EPILOG_DEMO = """example:
+  rigcal demo --out demo_out/
+"""
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="rigcal",
+        description="Joint extrinsic calibration of lidar, camera and radar rigs.",
+    )
+    p.add_argument("--version", action="version", version=f"rigcal {__version__}")
+    p.add_argument("-v", "--verbose", action="store_true", help="log progress to stderr")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND")
+
+    c = sub.add_parser(
+        "calibrate",
+        help="calibrate a rig from board detections",
+        description="Calibrate every sensor of a rig into the reference sensor's frame from "
+        "detections of the circle board (manifest rig.yaml, or the original tool's CSV/YAML "
+        "files with --lidar/--camera/--radar).",
+        epilog=EPILOG_CALIBRATE,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    c.add_argument("manifest", nargs="?", help="rig.yaml manifest (or a folder holding one)")
+    c.add_argument("--lidar", action="append", default=[], metavar="FILE", help="lidar detections (repeatable)")
+    c.add_argument("--camera", action="append", default=[], metavar="FILE", help="camera detections (repeatable)")
+    c.add_argument("--radar", action="append", default=[], metavar="FILE", help="2D radar detections (repeatable)")
+    c.add_argument("--radar3d", action="append", default=[], metavar="FILE", help="3D radar detections (repeatable)")
+    c.add_argument("--mode", default="fcpe", choices=["mcpe", "fcpe", "pse"], help="configuration (default fcpe)")
+    c.add_argument("--reference", help="reference sensor name (default: manifest's, else first lidar)")
+    c.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    c.add_argument("--json", action="store_true", help="print the result as JSON on stdout")
+    c.add_argument("--ignore", metavar="FILE", help="original tool's ignore file (sensor -> CSV columns)")
+    c.add_argument("--keep-outliers", action="store_true", help="do not search for bad detections")
+    c.add_argument(
+        "--hold-radar-plane",
+        action="store_true",
+        help="hold each 2D radar's z, roll and pitch at the initial guess",
+    )
+    c.add_argument("--initial", metavar="FILE", help="initial guesses: a previous calibration.yaml")
+    c.add_argument("--cv-folds", type=int, default=5, metavar="N", help="leave-boards-out folds (0 = off)")
+    c.add_argument("--no-plot", action="store_true", help="do not write calibration.png")
+
+    d = sub.add_parser(
+        "demo",
+        help="simulate a Prius-like rig, calibrate with all modes, compare with the truth",
+        description="Simulates a lidar, a stereo camera and a 2D radar on a car with 29 board "
+        "placements and realistic noise, calibrates with MCPE, FCPE and PSE, prints errors "
+        "against the simulated truth and writes every output. Needs no files.",
+        epilog=EPILOG_DEMO,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    d.add_argument("--out", default="demo_out", metavar="DIR", help="output folder (default demo_out)")
+    d.add_argument("--seed", type=int, default=7, help="random seed (default 7)")
+    d.add_argument("--boards", type=int, default=29, help="board placements (default 29)")
+    return p
+
+
+def _load_initial(path: str) -> dict[str, np.ndarray]:
+    import yaml
+
+    from rigcal.errors import InputError
+
+    try:
+        data = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read initial guesses: {exc.strerror}") from None
+    except yaml.YAMLError as exc:
+        raise InputError(f"{path}: malformed YAML: {exc}") from None
+    sensors = data.get("sensors") if isinstance(data, dict) else None
+    if not isinstance(sensors, dict):
+        raise InputError(f"{path}: expected a calibration.yaml with a 'sensors' mapping")
+    out = {}
+    for name, entry in sensors.items():
+        T = np.asarray((entry or {}).get("T_reference_sensor"), dtype=float)
+        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+            raise InputError(f"{path}: sensors.{name}.T_reference_sensor must be a 4x4 matrix")
+        out[str(name)] = T
+    return out
+
+
+def _summary(result, console) -> None:
+    from rich.table import Table
+
+    t = Table(title=f"{result.mode.upper()} - reference {result.reference}")
+    for col in ("sensor", "x [m]", "y [m]", "z [m]", "roll", "pitch", "yaw [deg]", "std xyz [mm]", "std rpy [deg]"):
+        t.add_column(col, justify="right" if col != "sensor" else "left")
+    for name, est in result.sensors.items():
+        x, y, z = est.xyz_m
+        r, p, yw = est.rpy_deg
+        s = est.std
+        t.add_row(
+            name,
+            f"{x:.4f}", f"{y:.4f}", f"{z:.4f}", f"{r:.3f}", f"{p:.3f}", f"{yw:.3f}",
+            "/".join(f"{s[k] * 1000:.1f}" for k in ("x_m", "y_m", "z_m")),
+            "/".join(f"{s[k]:.2f}" for k in ("roll_deg", "pitch_deg", "yaw_deg")),
+        )
+    console.print(t)
+    e = Table(title="errors between sensors")
+    for col in ("pair", "RMSE [mm]", "cross-val RMSE [mm]", "worst board"):
+        e.add_column(col)
+    for pair, v in result.rmse_m.items():
+        cv = result.cross_validation_rmse_m.get(pair)
+        per = result.per_board_m.get(pair, {})
+        worst = max(per.items(), key=lambda kv: kv[1]) if per else None
+        e.add_row(
+            pair,
+            f"{v * 1000:.2f}",
+            "-" if cv is None else f"{cv * 1000:.2f}",
+            "-" if worst is None else f"#{worst[0]}: {worst[1] * 1000:.1f} mm",
+        )
+    console.print(e)
+    if result.outliers:
+        console.print("outliers (excluded): " + "; ".join(f"{s}: boards {list(b)}" for s, b in result.outliers.items()))
+    else:
+        console.print("outliers (excluded): none")
+    if result.noise_sigma_m:
+        console.print(
+            "PSE noise std [mm]: "
+            + "; ".join(f"{s}: {'/'.join(f'{v * 1000:.2f}' for v in sig)}" for s, sig in result.noise_sigma_m.items())
+        )
+    for w in result.warnings:
+        console.print(f"[yellow]warning:[/yellow] {w}")
+
+
+def _cmd_calibrate(args, console) -> int:
+    from rigcal.errors import InputError
+    from rigcal.io.ignore import read_ignore_file
+    from rigcal.io.manifest import dataset_from_files, load_manifest
+    from rigcal.io.results import result_to_json_text, write_results
+    from rigcal.problem.calibrate import CalibrationOptions, calibrate
+
+    files = args.lidar or args.camera or args.radar or args.radar3d
+    if args.manifest and files:
+        raise InputError("give either a manifest or --lidar/--camera/--radar files, not both")
+    if args.manifest:
+        dataset = load_manifest(args.manifest)
+    elif files:
+        dataset = dataset_from_files(
+            lidar=args.lidar, camera=args.camera, radar=args.radar, radar3d=args.radar3d
+        )
+    else:
+        raise InputError("no input: give a rig.yaml manifest or --lidar/--camera/--radar files")
+    if args.ignore:
+        dataset = dataset.with_excluded(read_ignore_file(args.ignore, dataset))
+    options = CalibrationOptions(
+        mode=args.mode,
+        reference=args.reference,
+        detect_outliers=not args.keep_outliers,
+        hold_radar_plane=args.hold_radar_plane,
+        initial=_load_initial(args.initial) if args.initial else None,
+        cross_validation_folds=args.cv_folds,
+    )
+    result = calibrate(dataset, options)
+    write_results(result, args.out)
+    if not args.no_plot:
+        from rigcal.report.plot import plot_calibration
+
+        plot_calibration(dataset, result, Path(args.out) / "calibration.png")
+    if args.json:
+        sys.stdout.write(result_to_json_text(result) + "\n")
+    _summary(result, console)
+    console.print(f"results written to {args.out}/")
+    return 0
+
+
+def _cmd_demo(args, console) -> int:
+    from rich.table import Table
+
+    from rigcal.io.manifest import write_dataset
+    from rigcal.io.results import write_results
+    from rigcal.problem.calibrate import CalibrationOptions, calibrate
+    from rigcal.problem.compare import errors_against_truth
+    from rigcal.report.plot import plot_calibration
+    from rigcal.sim import make_rig_placements, prius_like_rig, simulate
+
+    rng = np.random.default_rng(args.seed)
+    sensors = prius_like_rig()
+    placements = make_rig_placements(rng, sensors, args.boards)
+    sim = simulate(sensors, placements, rng=rng, reference=sensors[0].name)
+    out = Path(args.out)
+    write_dataset(sim.dataset, out / "dataset")
+    console.print(
+        f"simulated {len(sensors)} sensors ({', '.join(s.name for s in sensors)}), "
+        f"{args.boards} board placements, seed {args.seed}; detections in {out / 'dataset'}/"
+    )
+    table = Table(title="errors against the simulated truth (T_reference_sensor)")
+    for col in ("mode", "sensor", "translation [mm]", "rotation [deg]", "std xyz [mm]", "RMSE pairs [mm]"):
+        table.add_column(col)
+    for mode in ("mcpe", "fcpe", "pse"):
+        result = calibrate(sim.dataset, CalibrationOptions(mode=mode, cross_validation_folds=5))
+        write_results(result, out / mode)
+        plot_calibration(sim.dataset, result, out / mode / "calibration.png")
+        errs = errors_against_truth(result, sim.truth)
+        rm = ", ".join(f"{k} {v * 1000:.1f}" for k, v in result.rmse_m.items())
+        for i, (name, e) in enumerate(errs.items()):
+            s = result.sensors[name].std
+            table.add_row(
+                mode.upper() if i == 0 else "",
+                name,
+                f"{e.translation_m * 1000:.1f}",
+                f"{e.rotation_deg:.3f}",
+                "/".join(f"{s[k] * 1000:.1f}" for k in ("x_m", "y_m", "z_m")),
+                rm if i == 0 else "",
+            )
+        for w in result.warnings:
+            console.print(f"[yellow]{mode.upper()} warning:[/yellow] {w}")
+    console.print(table)
+    console.print(f"outputs written to {out}/ (dataset/, mcpe/, fcpe/, pse/)")
+    return 0
+
+
+def run(argv: Sequence[str] | None = None) -> int:
+    """Run the command line; returns the exit code."""
+    from rich.console import Console
+
+    parser = _parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(message)s")
+    if args.command is None:
+        parser.print_help()
+        return 2
+    # with --json, stdout carries only the JSON; the human summary goes to stderr
+    to_err = bool(getattr(args, "json", False))
+    stream = sys.stderr if to_err else sys.stdout
+    console = Console(stderr=to_err, highlight=False, width=None if stream.isatty() else 130)
+    try:
+        if args.command == "calibrate":
+            return _cmd_calibrate(args, console)
+        if args.command == "demo":
+            return _cmd_demo(args, console)
+    except RigcalError as exc:
+        sys.stderr.write(f"rigcal: error: {exc}\n")
+        return 1
+    return 2
+
+
+def entry() -> None:
+    sys.exit(run())
+
+
+if __name__ == "__main__":  # pragma: no cover
+    entry()

@@ -224,6 +224,12 @@ class _Layout:
             )
             for b in problem.limits
         ]
+        # all field-of-view limits as flat arrays
+        if problem.limits:
+            self.lim_ia = np.concatenate([ia for ia, _ in self.lim_idx])
+            self.lim_ib = np.concatenate([ib for _, ib in self.lim_idx])
+            self.lim_points = np.concatenate([b.points for b in problem.limits])
+            self.lim_max = np.concatenate([b.max_elevation_rad for b in problem.limits])
         self.m_obs = sum(b.size * b.dim for b in problem.observations)
         self.m = self.m_obs + sum(b.size for b in problem.limits)
 
@@ -393,20 +399,32 @@ def _constrained_step(M, g, c, G, active_tol=1e-9, max_rounds=60):
 
 
 def _constraint_hessian(problem, layout, T, mult, h=1e-6):
-    """sum_i mult_i * Hessian(c_i) by finite differences of the weighted constraint gradient."""
+    """sum_i mult_i * Hessian(c_i) over the active limits (finite differences of analytic
+    gradients, vectorised over the 12 local DOFs of each item's two poses)."""
     n = layout.n_free
     H = np.zeros((n, n))
-    if not np.any(mult > 0):
+    act = np.flatnonzero(mult > 0)
+    if act.size == 0:
         return H
-    _, G0 = _constraints(problem, layout, T)
-    g0 = G0.T @ mult
-    cols = np.flatnonzero(np.any(G0[mult > 0] != 0, axis=0))
-    for j in cols:
-        e = np.zeros(n)
-        e[j] = h
-        _, Gj = _constraints(problem, layout, _retract(T, layout, e))
-        H[:, j] = (Gj.T @ mult - g0) / h
-    H = 0.5 * (H + H.T)
+    ia, ib = layout.lim_ia[act], layout.lim_ib[act]
+    pts, mx = layout.lim_points[act], layout.lim_max[act] - 1e6
+    TA, TB = T[ia], T[ib]
+    steps = se3_exp(np.eye(6) * h)  # (6, 4, 4)
+    k = act.size
+    # 13 configurations per item: unperturbed, 6 perturbations of A, 6 of B
+    TA_all = np.concatenate([TA[:, None], TA[:, None] @ steps[None], np.repeat(TA[:, None], 6, 1)], 1)
+    TB_all = np.concatenate([TB[:, None], np.repeat(TB[:, None], 6, 1), TB[:, None] @ steps[None]], 1)
+    _, JA, JB = elevation_limit_residuals(
+        TA_all.reshape(-1, 4, 4), TB_all.reshape(-1, 4, 4), np.repeat(pts, 13, 0), np.repeat(mx, 13), 1.0
+    )
+    grad = np.concatenate([JA[:, 0, :], JB[:, 0, :]], axis=1).reshape(k, 13, 12)
+    Hi = (grad[:, 1:, :] - grad[:, :1, :]) / h  # (k, 12 perturbations, 12 gradient entries)
+    Hi = 0.5 * (Hi + np.swapaxes(Hi, 1, 2)) * mult[act][:, None, None]
+    cols = np.concatenate([layout.cols[ia], layout.cols[ib]], axis=1)  # (k, 12)
+    for i in range(k):
+        keep = cols[i] >= 0
+        c = cols[i][keep]
+        H[np.ix_(c, c)] += Hi[i][np.ix_(keep, keep)]
     return H
 
 

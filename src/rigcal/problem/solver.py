@@ -457,7 +457,8 @@ def _lm(problem, layout, T, loss, loss_scale, max_iterations, ftol, xtol, gtol, 
     r, J, cost, _ = _evaluate(problem, layout, T, loss, loss_scale, True)
     c, G = _constraints(problem, layout, T)
     A, g = _normal(J, r)
-    lam = 1e-6
+    lam = 1e-4
+    nu_grow = 2.0
     rho = 1.0
     active = np.zeros(c.size, dtype=bool)
     mult = np.zeros(c.size)
@@ -484,16 +485,23 @@ def _lm(problem, layout, T, loss, loss_scale, max_iterations, ftol, xtol, gtol, 
                 # penalty weight above the gradient's pull on the active constraints
                 rho = max(rho, 10.0 * float(np.linalg.norm(g)) / max(1e-12, float(np.min(np.linalg.norm(G, axis=1)))))
             m_old, m_new = merit(cost, c, rho), merit(cost_new, c_new, rho)
+            predicted = -(g @ delta + 0.5 * delta @ (A @ delta))
+            if c.size:
+                lin = c + G @ delta
+                predicted += rho * float(np.sum(np.maximum(c, 0)) - np.sum(np.maximum(lin, 0)))
             if m_new < m_old or (m_new <= m_old and step <= xtol):
                 accepted = True
                 rel = (m_old - m_new) / max(m_old, 1e-300)
                 T, cost, c, active, mult = T_new, cost_new, c_new, act, mult_new
-                lam = max(lam / 10.0, 1e-12)
+                # gain ratio: damp more when the quadratic model predicted the decrease badly
+                gain = (m_old - m_new) / predicted if predicted > 0 else 0.0
+                lam = min(max(lam * max(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3), 1e-12), 1e12)
+                nu_grow = 2.0
                 break
-            predicted = -(g @ delta + 0.5 * delta @ (A @ delta))
             if (predicted <= ftol * max(cost, 1e-300) or step <= xtol) and feasible:
                 break
-            lam *= 10.0
+            lam *= nu_grow
+            nu_grow *= 2.0
         if not accepted:
             if feasible:
                 return T, it, True, "no further decrease possible (at a minimum)", active
@@ -515,7 +523,7 @@ def solve(
     loss: str = "linear",
     loss_scale: float = 1.0,
     max_iterations: int = 200,
-    ftol: float = 1e-10,
+    ftol: float = 1e-12,
     xtol: float = 1e-12,
     gtol: float = 1e-10,
 ) -> Solution:

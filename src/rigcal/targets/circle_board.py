@@ -30,13 +30,20 @@ def board_normals(centres_sensor: np.ndarray) -> np.ndarray:
 
     The normal is the least-squares plane normal of the four centres, oriented away from the
     sensor (positive dot product with the centroid), i.e. pointing from the front face to the back.
+    Boards with any non-finite centre (missed detections) get NaN normals.
     """
     c = np.asarray(centres_sensor, dtype=float)
-    mean = c.mean(axis=1, keepdims=True)
-    _, _, Vt = np.linalg.svd(c - mean)
+    out = np.full((c.shape[0], 3), np.nan)
+    ok = np.all(np.isfinite(c.reshape(c.shape[0], -1)), axis=1)  # missed boards stay NaN
+    if not np.any(ok):
+        return out
+    cc = c[ok]
+    mean = cc.mean(axis=1, keepdims=True)
+    _, _, Vt = np.linalg.svd(cc - mean)
     n = Vt[:, 2, :]
     flip = np.einsum("ki,ki->k", n, mean[:, 0, :]) < 0
-    return np.where(flip[:, None], -n, n)
+    out[ok] = np.where(flip[:, None], -n, n)
+    return out
 
 
 def reflectors_from_centres(centres_sensor: np.ndarray, board: BoardGeometry) -> np.ndarray:

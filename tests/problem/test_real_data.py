@@ -1,0 +1,153 @@
+"""The original tool's example data (TU Delft Prius: lidar1, camera1, radar1, 29 boards):
+RMSEs of the three configurations against the numbers the original tool reports."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rigcal.geometry.se3 import invert, se3_exp
+from rigcal.problem.configurations import RADAR_PLANE_HELD, pairs_for_mode
+from rigcal.problem.evaluate import anchor_errors
+from rigcal.problem.initialise import initial_poses
+from rigcal.problem.pairs import pair_data, reflector_points
+from rigcal.sensors.radar import elevation
+
+PAIRS = ("lidar1-camera1", "lidar1-radar1", "camera1-radar1")
+MM = 1e-3
+
+
+def _poses(result) -> dict[str, np.ndarray]:
+    return {k: v.T_reference_sensor for k, v in result.sensors.items()}
+
+
+def test_fcpe_rmse_matches_the_original_tool(real_calibration):
+    r = real_calibration("fcpe")
+    assert r.converged and r.reference == "lidar1"
+    assert set(r.rmse_m) == set(PAIRS)
+    assert r.rmse_m["lidar1-camera1"] <= 15.26 * MM
+    assert r.rmse_m["camera1-radar1"] <= 21.11 * MM
+    # The original tool reports 14.27 mm for lidar1-radar1. Our loop-closed FCPE optimum trades
+    # 0.03 mm on lidar-radar for 0.21 mm on camera-radar and has the lower total cost (below).
+    assert r.rmse_m["lidar1-radar1"] <= 14.30 * MM
+
+
+def test_fcpe_total_cost_is_below_the_original_tools(real_dataset, real_calibration):
+    """FCPE minimises the sum over pairs of squared anchor errors; weighted by each pair's anchor
+    count, ours must be lower than what the original tool's per-pair RMSEs imply."""
+    r = real_calibration("fcpe")
+    counts = {}
+    for a, b in (("lidar1", "camera1"), ("lidar1", "radar1"), ("camera1", "radar1")):
+        p = pair_data(real_dataset, a, b)
+        counts[p.label] = p.points.shape[0]
+    assert counts == {"lidar1-camera1": 116, "lidar1-radar1": 29, "camera1-radar1": 29}
+    ours = sum(counts[k] * (r.rmse_m[k] / MM) ** 2 for k in PAIRS)
+    original = 116 * 15.25**2 + 29 * 14.27**2 + 29 * 21.11**2  # mm^2
+    assert ours < original
+    # and it is the cost the solver reports (0.5 * sum of squares, in m^2)
+    assert r.cost == pytest.approx(0.5 * ours * MM**2, rel=1e-9)
+
+
+def test_pse_converges_with_estimated_noise(real_calibration):
+    r = real_calibration("pse")
+    assert r.converged
+    assert r.noise_iterations > 1
+    assert set(r.noise_sigma_m) == {"lidar1", "camera1", "radar1"}
+    for name, sig in r.noise_sigma_m.items():
+        assert all(1e-4 <= s < 0.05 for s in sig), (name, sig)
+    original = {"lidar1-camera1": 15.25, "lidar1-radar1": 14.20, "camera1-radar1": 20.79}
+    for pair, mm in original.items():
+        assert r.rmse_m[pair] == pytest.approx(mm * MM, rel=0.10), pair
+
+
+def _mcpe_pairs(dataset):
+    return [pair_data(dataset, a, b) for a, b in pairs_for_mode(dataset, "mcpe", "lidar1")]
+
+
+def _mcpe_cost(dataset, pairs, poses) -> float:
+    return sum(float(np.sum(anchor_errors(p, poses) ** 2)) for p in pairs)
+
+
+def test_mcpe_is_at_a_constrained_minimum(real_dataset, real_calibration):
+    """Small twists of any free sensor never lower the MCPE cost, except those that push a
+    reflector (further) out of the radar's elevation field of view."""
+    r = real_calibration("mcpe")
+    poses = _poses(r)
+    pairs = _mcpe_pairs(real_dataset)
+    assert {p.label for p in pairs} == {"lidar1-camera1", "lidar1-radar1"}
+    refl = reflector_points(real_dataset.sensor("lidar1"), real_dataset)
+    max_el = real_dataset.sensor("radar1").max_elevation_rad
+
+    def abs_el(P):
+        T = invert(P["radar1"]) @ P["lidar1"]
+        return np.abs(elevation(refl @ T[:3, :3].T + T[:3, 3]))
+
+    cost0 = _mcpe_cost(real_dataset, pairs, poses)
+    el0 = abs_el(poses)
+    assert np.all(el0 <= max_el + 1e-6)
+    rng = np.random.default_rng(20240)
+    # 20 random unit twists, plus +- each axis: the axis steps catch a residual gradient along a
+    # weak direction (a 2D radar's roll / pitch / z) that random steps hide under the curvature
+    # of the stiff directions (they flag the Kabsch guess, which random steps do not)
+    directions = [v / np.linalg.norm(v) for v in rng.standard_normal((20, 6))]
+    directions += [sign * e for e in np.eye(6) for sign in (1.0, -1.0)]
+    kept = {"camera1": 0, "radar1": 0}
+    lowered_when_infeasible = 0
+    for sensor in ("camera1", "radar1"):
+        for v in directions:
+            P = dict(poses)
+            P[sensor] = poses[sensor] @ se3_exp(1e-4 * v)
+            el = abs_el(P)
+            delta = _mcpe_cost(real_dataset, pairs, P) - cost0
+            if np.any((el > max_el) & (el > el0)):
+                lowered_when_infeasible += delta < 0
+                continue
+            kept[sensor] += 1
+            assert delta >= 0.0, (sensor, v, delta)
+    # the camera is not limited by the radar's field of view
+    assert kept["camera1"] == len(directions)
+    assert kept["radar1"] >= 10
+    # the limit is active: leaving the field of view would lower the cost
+    assert lowered_when_infeasible >= 1
+
+
+def test_mcpe_differs_from_kabsch_initial_guess(real_dataset, real_calibration):
+    r = real_calibration("mcpe")
+    poses = _poses(r)
+    init = initial_poses(real_dataset, "lidar1", robust=True)
+    pairs = _mcpe_pairs(real_dataset)
+    # the radar's Kabsch guess assumes the reflectors on the radar plane: MCPE moves it
+    assert np.linalg.norm(poses["radar1"][:3, 3] - init["radar1"][:3, 3]) > 1 * MM
+    assert _mcpe_cost(real_dataset, pairs, poses) < _mcpe_cost(real_dataset, pairs, init)
+    # for the lidar-camera pair, Kabsch is already the least-squares optimum MCPE finds.
+    # Known gap (issue #2 notes): MCPE's pairs share one LM damping, so the radar pair's active
+    # field-of-view constraint stops the joint iteration ~10 um short for the camera; the fix is
+    # to solve MCPE pairs as separate problems. Until then: within 0.1 mm / 1e-4.
+    np.testing.assert_allclose(poses["camera1"], init["camera1"], atol=1e-4)
+
+
+@pytest.mark.parametrize("mode", ["mcpe", "fcpe", "pse"])
+def test_no_outliers_on_clean_real_data(real_calibration, mode):
+    r = real_calibration(mode)
+    assert r.outliers == {}
+    assert r.num_boards == 29
+    assert all(len(v) == 29 for v in r.per_board_m.values())
+
+
+@pytest.mark.parametrize("mode", ["fcpe", "pse"])
+def test_hold_radar_plane_keeps_z_roll_pitch_of_initial_guess(real_dataset, real_calibration, mode):
+    held = real_calibration(mode, hold_radar_plane=True)
+    assert held.sensors["radar1"].held == RADAR_PLANE_HELD
+    init = initial_poses(real_dataset, "lidar1", robust=True)["radar1"]
+    D = invert(init) @ held.sensors["radar1"].T_reference_sensor
+    assert abs(D[2, 3]) < 1e-9
+    np.testing.assert_allclose(D[2, :3], [0.0, 0.0, 1.0], atol=1e-9)
+    # roll, pitch and z of the radar's own frame carry no variance (tangent order: rotation first)
+    cov = held.sensors["radar1"].covariance
+    for i in (0, 1, 5):
+        assert np.all(cov[i] == 0.0) and np.all(cov[:, i] == 0.0)
+    assert cov[2, 2] > 0 and cov[3, 3] > 0 and cov[4, 4] > 0
+    # without holding, the radar tilts away from the initial guess
+    free = real_calibration(mode)
+    D_free = invert(init) @ free.sensors["radar1"].T_reference_sensor
+    assert np.linalg.norm(D_free[2, :2]) > 1e-3 or abs(D_free[2, 3]) > 1e-3

@@ -1,0 +1,229 @@
+"""The Levenberg-Marquardt solver on SE(3), its residual Jacobians and the field-of-view
+constraint of 2D radars (paper eq. 4)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from rigcal.geometry.se3 import from_rt, invert, se3_exp
+from rigcal.geometry.so3 import matrix_from_rpy, so3_log
+from rigcal.problem.configurations import RADAR_PLANE_FREE, build_pairwise
+from rigcal.problem.initialise import initial_poses
+from rigcal.problem.pairs import pair_data
+from rigcal.problem.residuals import (
+    MODEL_POINT,
+    MODEL_RADAR2D,
+    elevation_limit_residuals,
+    observation_residuals,
+)
+from rigcal.problem.solver import ALL_FREE, Observations, PoseBlock, Problem, solve
+from rigcal.sensors.radar import elevation, project_2d
+
+HELD = (False,) * 6
+T_TRUE = from_rt(matrix_from_rpy([0.1, -0.2, 0.3]), [0.5, -0.3, 0.2])
+#: a start well away from the truth: about 15 deg and 45 cm
+PERTURBATION = np.array([0.15, -0.1, 0.2, 0.3, -0.2, 0.25])
+
+
+def _points(rng: np.random.Generator, n: int = 16) -> np.ndarray:
+    """Points 3-8 m ahead of the fixed sensor, spread left-right and up-down."""
+    return np.column_stack(
+        [rng.uniform(3.0, 8.0, n), rng.uniform(-3.0, 3.0, n), rng.uniform(-0.6, 0.6, n)]
+    )
+
+
+def _measure(points_a: np.ndarray, T_a_b: np.ndarray, model: str) -> np.ndarray:
+    x = points_a @ invert(T_a_b)[:3, :3].T + invert(T_a_b)[:3, 3]
+    return project_2d(x) if model == MODEL_RADAR2D else x
+
+
+def _tiny_problem(model: str, start: np.ndarray, free=ALL_FREE, truth=T_TRUE, seed=0) -> Problem:
+    """Sensor ``a`` (held, identity) and sensor ``b`` (pose ``T_a_b`` to estimate): noise-free
+    observations by ``b`` of points known in ``a``."""
+    pts = _points(np.random.default_rng(seed))
+    meas = _measure(pts, truth, model)
+    n = len(pts)
+    obs = Observations(
+        label="a-b",
+        sensor="b",
+        model=model,
+        frame=("a",) * n,
+        observer=("b",) * n,
+        points=pts,
+        measured=meas,
+        sigma=np.ones_like(meas),
+        board=np.arange(n),
+    )
+    return Problem((PoseBlock("a", np.eye(4), HELD), PoseBlock("b", start, free)), (obs,))
+
+
+def _pose_error(T: np.ndarray, T_ref: np.ndarray) -> tuple[float, float]:
+    D = invert(T_ref) @ T
+    return float(np.linalg.norm(D[:3, 3])), float(np.linalg.norm(so3_log(D[:3, :3])))
+
+
+# --------------------------------------------------------------------------- convergence
+
+
+@pytest.mark.parametrize("model", [MODEL_POINT, MODEL_RADAR2D])
+def test_tiny_problem_converges_to_truth(model):
+    scale = 1.0 if model == MODEL_POINT else 0.3  # 2D radar: tilt is only weakly observable
+    start = T_TRUE @ se3_exp(scale * PERTURBATION)
+    assert _pose_error(start, T_TRUE)[0] > 0.05  # the start is really off
+    sol = solve(_tiny_problem(model, start))
+    assert sol.converged, sol.status
+    dt, dr = _pose_error(sol.poses["b"], T_TRUE)
+    assert dt < 1e-8 and dr < 1e-8
+    assert sol.cost < 1e-16
+    # the held reference block is returned bit for bit
+    assert np.array_equal(sol.poses["a"], np.eye(4))
+    assert sol.iterations > 1
+
+
+def test_held_dofs_stay_at_their_value():
+    """A 2D radar with RADAR_PLANE_FREE: yaw, x, y move; z, roll and pitch in its own frame stay
+    at the start even though the data want them elsewhere."""
+    start = T_TRUE @ se3_exp(0.3 * PERTURBATION)
+    held = solve(_tiny_problem(MODEL_RADAR2D, start, free=RADAR_PLANE_FREE))
+    assert held.converged, held.status
+    D = invert(start) @ held.poses["b"]  # motion of the radar in its own start frame
+    assert abs(D[2, 3]) < 1e-12  # z
+    np.testing.assert_allclose(D[2, :3], [0.0, 0.0, 1.0], atol=1e-12)  # roll, pitch
+    np.testing.assert_allclose(D[:3, 2], [0.0, 0.0, 1.0], atol=1e-12)
+    # the free DOFs did move: x, y, yaw
+    assert np.hypot(D[0, 3], D[1, 3]) > 1e-3
+    assert abs(np.arctan2(D[1, 0], D[0, 0])) > 1e-3
+    # held DOFs have no covariance; free ones do
+    cov = held.pose_covariance("b")
+    for i, free in enumerate(RADAR_PLANE_FREE):
+        if not free:
+            assert np.all(cov[i] == 0.0) and np.all(cov[:, i] == 0.0)
+        else:
+            assert cov[i, i] > 0.0
+    # the same problem with every DOF free moves z / roll / pitch (to the truth): holding matters
+    free = solve(_tiny_problem(MODEL_RADAR2D, start))
+    D_free = invert(start) @ free.poses["b"]
+    assert abs(D_free[2, 3]) > 1e-3 or np.linalg.norm(D_free[2, :2]) > 1e-3
+    assert _pose_error(free.poses["b"], T_TRUE)[0] < 1e-8
+
+
+def test_not_converged_when_iterations_run_out():
+    start = T_TRUE @ se3_exp(PERTURBATION)
+    problem = _tiny_problem(MODEL_POINT, start)
+    full = solve(problem)
+    assert full.converged and full.iterations > 1  # the problem needs more than one step
+    one = solve(problem, max_iterations=1)
+    assert not one.converged
+    assert "iteration" in one.status
+    assert one.cost > full.cost
+
+
+# --------------------------------------------------------------------------- Jacobians
+
+
+def _random_pose(rng: np.random.Generator) -> np.ndarray:
+    return from_rt(matrix_from_rpy(rng.uniform(-np.pi, np.pi, 3)), rng.uniform(-2.0, 2.0, 3))
+
+
+def _case(seed: int, n: int, min_abs_elevation: float, max_abs_elevation: float):
+    """Random poses T_W_A, T_W_B and points in A that lie 2-10 m in front of B with
+    |elevation| in the given range (so the radar projection and elevation are smooth)."""
+    rng = np.random.default_rng(seed)
+    T_W_A, T_W_B = _random_pose(rng), _random_pose(rng)
+    rng_m = rng.uniform(2.0, 10.0, n)
+    az = rng.uniform(-1.0, 1.0, n)
+    el = rng.uniform(min_abs_elevation, max_abs_elevation, n) * rng.choice([-1.0, 1.0], n)
+    x_B = rng_m[:, None] * np.column_stack(
+        [np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)]
+    )
+    T_A_B = invert(T_W_A) @ T_W_B
+    points_A = x_B @ T_A_B[:3, :3].T + T_A_B[:3, 3]
+    return rng, np.repeat(T_W_A[None], n, 0), np.repeat(T_W_B[None], n, 0), points_A
+
+
+def _function(kind: str, rng: np.random.Generator, n: int):
+    """(f(TA, TB) -> (r, JA, JB)) for one residual family with random whitening."""
+    if kind == "elevation":
+        max_el = np.full(n, 0.1)
+        sigma = 0.01
+        return lambda TA, TB, P: elevation_limit_residuals(TA, TB, P, max_el, sigma)
+    model = MODEL_POINT if kind == "point3d" else MODEL_RADAR2D
+    d = 3 if kind == "point3d" else 2
+    measured = rng.normal(0.0, 3.0, (n, d))
+    sigma = rng.uniform(0.01, 0.2, (n, d))
+    return lambda TA, TB, P: observation_residuals(TA, TB, P, measured, sigma, model)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("block", ["A", "B"])
+@pytest.mark.parametrize("kind", ["point3d", "radar2d", "elevation"])
+def test_jacobian_matches_central_differences_of_right_perturbation(kind, block, seed):
+    """Contract: J[i, :, j] = d r_i / d xi_j with T <- T @ se3_exp(xi), xi = (omega, v)."""
+    n = 12
+    rng, TA, TB, P = _case(seed, n, 0.2, 0.6)  # |elevation| > 0.1: every hinge is active
+    f = _function(kind, rng, n)
+    r, JA, JB = f(TA, TB, P)
+    J = JA if block == "A" else JB
+    assert J.shape == r.shape + (6,)
+    if kind == "elevation":
+        assert np.all(r > 0)  # the contract is tested where the hinge is differentiable
+    h = 1e-6
+    fd = np.empty_like(J)
+    for j in range(6):
+        xi = np.zeros(6)
+        xi[j] = h
+        if block == "A":
+            rp, rm = f(TA @ se3_exp(xi), TB, P)[0], f(TA @ se3_exp(-xi), TB, P)[0]
+        else:
+            rp, rm = f(TA, TB @ se3_exp(xi), P)[0], f(TA, TB @ se3_exp(-xi), P)[0]
+        fd[..., j] = (rp - rm) / (2 * h)
+    scale = float(np.max(np.abs(J)))
+    assert scale > 1.0  # not a trivially zero Jacobian
+    np.testing.assert_allclose(J, fd, rtol=1e-6, atol=1e-6 * scale)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_elevation_limit_is_zero_inside_the_field_of_view(seed):
+    n = 10
+    _, TA, TB, P = _case(seed, n, 0.0, 0.09)
+    r, JA, JB = elevation_limit_residuals(TA, TB, P, np.full(n, 0.1), 0.01)
+    assert np.all(r == 0.0) and np.all(JA == 0.0) and np.all(JB == 0.0)
+    # and the hinge value outside is (|elevation| - max) / sigma
+    _, TA, TB, P = _case(seed, n, 0.2, 0.6)
+    r = elevation_limit_residuals(TA, TB, P, np.full(n, 0.1), 0.01)[0]
+    x = np.einsum("nij,nj->ni", invert(TB) @ TA, np.column_stack([P, np.ones(n)]))[:, :3]
+    np.testing.assert_allclose(r[:, 0], (np.abs(elevation(x)) - 0.1) / 0.01, rtol=1e-12)
+
+
+# --------------------------------------------------------------------------- field of view
+
+
+def _reflector_elevations(dataset, poses, frame: str, radar: str) -> np.ndarray:
+    p = pair_data(dataset, frame, radar)
+    T = invert(poses[radar]) @ poses[frame]
+    return np.abs(elevation(p.points @ T[:3, :3].T + T[:3, 3]))
+
+
+def test_fov_constraint_holds_and_matters_on_real_lidar_radar_pair(real_dataset):
+    """Alone, the real lidar1-radar1 pair's least-squares optimum tilts the radar so that the
+    reflectors leave its +-9 deg field of view; with the constraint every reflector stays in."""
+    poses0 = initial_poses(real_dataset, "lidar1")
+    problem = build_pairwise(real_dataset, poses0, "lidar1", [("lidar1", "radar1")])
+    assert len(problem.limits) == 1
+    max_el = real_dataset.sensor("radar1").max_elevation_rad
+
+    constrained = solve(problem)
+    assert constrained.converged, constrained.status
+    el = _reflector_elevations(real_dataset, constrained.poses, "lidar1", "radar1")
+    assert np.all(el <= max_el + 1e-6)
+    assert np.max(el) > max_el - 1e-4  # the constraint is active: some board sits on the edge
+
+    free = solve(dataclasses.replace(problem, limits=()))
+    assert free.converged, free.status
+    el_free = _reflector_elevations(real_dataset, free.poses, "lidar1", "radar1")
+    assert np.sum(el_free > max_el + 1e-3) >= 3
+    # dropping the constraint lowers the cost: the limit is what holds the radar back
+    assert free.cost < constrained.cost

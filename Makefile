@@ -16,7 +16,7 @@ demo: $(STAMP)
 	$(BIN)/rigcal demo --out demo_out
 
 test: $(STAMP)
-	$(BIN)/python -m pytest -q -p no:cacheprovider
+	$(BIN)/python -m pytest -p no:cacheprovider
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_solvers.py

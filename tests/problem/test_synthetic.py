@@ -1,9 +1,7 @@
 """Calibration of simulated rigs in arbitrary orientations against the simulated truth.
 
-NOTE on board visibility: the placements use ``min_fraction=1.0`` (every sensor detects every
-board). With missed (NaN) lidar/camera detections, any rig with a radar currently crashes in
-``rigcal.targets.circle_board.board_normals`` (numpy LinAlgError "SVD did not converge" on the
-NaN rows; see ``test_missed_detections_with_a_radar`` below, an expected failure until fixed).
+Board placements are as :func:`make_rig_placements` makes them: some boards are missed by some
+sensors (NaN detections), e.g. outside a 2D radar's elevation field of view.
 """
 
 from __future__ import annotations
@@ -34,7 +32,7 @@ NUM_BOARDS = 32
 
 
 def _sim(rig: tuple[int, int, int, int], seed: int = SEED, noise_free: bool = False,
-         num_boards: int = NUM_BOARDS, min_fraction: float = 1.0):
+         num_boards: int = NUM_BOARDS, min_fraction: float = 0.6):
     rng = np.random.default_rng(seed)
     sensors = random_rig(rng, *rig)
     if noise_free:
@@ -72,14 +70,14 @@ def noisy():
 # 2 mm * range^2 along it, i.e. 2-10 cm at 3-7 m; 3D radar 2 cm range, 0.3 deg azimuth and
 # 0.5 deg elevation - 4-6 cm across the ray - with one reflector per board). Measured over seeds
 # 0-11 of these four rigs, 32 boards, all modes: 3D-sensor translation errors <= 62 mm, rotation
-# <= 1.18 deg, and error / (3 |std| + 5 mm) <= 1.01 (FCPE/MCPE std is optimistic for the camera:
+# <= 1.23 deg, and error / (3 |std| + 5 mm) <= 1.01 (FCPE/MCPE std is optimistic for the camera:
 # their unweighted model assumes equal noise on every axis while stereo depth noise grows with
-# range^2), error / (3 |std_rpy| + 0.05 deg) <= 1.01. Hence 4 sigma, plus absolute caps so an
+# range^2), error / (3 |std_rpy| + 0.05 deg) <= 1.11. Hence 4 sigma, plus absolute caps so an
 # inflated std cannot hide an error.
 SIGMAS = 4.0
 MAX_TRANSLATION_M = 0.08
 MAX_ROTATION_DEG = 1.5
-# 2D radars (measured: in-plane error <= 36 mm, yaw <= 0.47 deg over the same runs)
+# 2D radars (measured: in-plane error <= 36 mm, yaw <= 0.46 deg over the same runs)
 MAX_RADAR_XY_M = 0.05
 MAX_RADAR_YAW_DEG = 0.75
 
@@ -166,9 +164,8 @@ def test_lower_noise_gives_lower_error():
     rng = np.random.default_rng(5)
     sensors = random_rig(rng, 1, 1, 0, 1)
     placements = make_rig_placements(rng, sensors, 30, min_fraction=1.0)
-    fields = (
-        "sigma_m", "depth_sigma_at_1m_m", "range_sigma_m", "azimuth_sigma_deg", "elevation_sigma_deg"
-    )
+    fields = ("sigma_m", "depth_sigma_at_1m_m", "range_sigma_m", "azimuth_sigma_deg")
+    fields += ("elevation_sigma_deg",)
     quiet = tuple(
         dataclasses.replace(s, **{f: getattr(s, f) / 10 for f in fields}) for s in sensors
     )
@@ -183,9 +180,18 @@ def test_lower_noise_gives_lower_error():
 
 
 def test_missed_detections_with_a_radar():
-    sim = _sim(RIGS["2lidar-camera-radar"], min_fraction=0.6)
-    assert not all(s.detected.all() for s in sim.dataset.sensors)  # some boards are missed
+    """Boards missed by some sensors (NaN rows) only drop out of the pairs that need them.
+    (Regression: a NaN lidar/camera board made ``board_normals`` raise LinAlgError in any rig
+    with a radar.)"""
+    sim = _sim(RIGS["2lidar-camera-radar"])
+    missed = {s.name: int((~s.detected).sum()) for s in sim.dataset.sensors}
+    assert any(n > 0 for name, n in missed.items() if name != "radar1"), missed
     r = calibrate(sim.dataset, CalibrationOptions(mode="fcpe"))
+    assert r.outliers == {}
+    for pair, per_board in r.per_board_m.items():
+        a, b = pair.split("-")
+        both = sim.dataset.sensor(a).detected & sim.dataset.sensor(b).detected
+        assert sorted(per_board) == np.flatnonzero(both).tolist(), pair
     for name, err in errors_against_truth(r, sim.truth).items():
         if r.sensors[name].kind != SensorKind.RADAR:
             assert err.translation_m < MAX_TRANSLATION_M

@@ -12,7 +12,7 @@ Conventions (see ``docs/conventions.md``):
 No function here mutates its inputs.
 """
 
-from rigcal.geometry.align import kabsch, umeyama
+from rigcal.geometry.align import kabsch, kabsch_batch, umeyama
 from rigcal.geometry.frames import Transform
 from rigcal.geometry.se3 import (
     compose,
@@ -31,6 +31,7 @@ __all__ = [
     "hat",
     "invert",
     "kabsch",
+    "kabsch_batch",
     "matrix_from_rpy",
     "rpy_from_matrix",
     "se3_exp",

@@ -62,3 +62,32 @@ def umeyama(
     var_a = float(w @ np.sum(A * A, axis=1))
     s = float(np.sum(S * np.diag(D)) / var_a)
     return s, from_rt(R, cb - s * R @ ca)
+
+
+def kabsch_batch(points_from: np.ndarray, points_to: np.ndarray) -> np.ndarray:
+    """Rigid ``T_to_from`` for a batch of point-set pairs (B, N, 3) -> (B, 4, 4).
+
+    Degenerate sets (collinear points) give NaN transforms instead of raising, so a caller
+    scoring many hypotheses (RANSAC) can drop them.
+    """
+    a = np.asarray(points_from, dtype=float)
+    b = np.asarray(points_to, dtype=float)
+    if a.ndim != 3 or a.shape[-1] != 3 or a.shape != b.shape or a.shape[1] < 3:
+        raise GeometryError(
+            f"kabsch_batch needs two (B, N>=3, 3) arrays of equal shape, got {a.shape} and {b.shape}"
+        )
+    ca = a.mean(axis=1)
+    cb = b.mean(axis=1)
+    H = np.einsum("bni,bnj->bij", a - ca[:, None], b - cb[:, None])
+    U, S, Vt = np.linalg.svd(H)
+    d = np.sign(np.linalg.det(np.swapaxes(Vt, 1, 2) @ np.swapaxes(U, 1, 2)))
+    d[d == 0] = 1.0
+    D = np.zeros((a.shape[0], 3, 3))
+    D[:, 0, 0] = 1.0
+    D[:, 1, 1] = 1.0
+    D[:, 2, 2] = d
+    R = np.swapaxes(Vt, 1, 2) @ D @ np.swapaxes(U, 1, 2)
+    T = from_rt(R, cb - np.einsum("bij,bj->bi", R, ca))
+    bad = S[:, 1] < 1e-12 * np.maximum(S[:, 0], 1e-300)
+    T[bad] = np.nan
+    return T

@@ -28,7 +28,7 @@ from rigcal.problem.initialise import default_reference, initial_poses
 from rigcal.problem.outliers import OutlierRule, find_outliers
 from rigcal.problem.pairs import all_pairs, pair_data
 from rigcal.problem.result import CalibrationResult, SensorEstimate
-from rigcal.problem.solver import Problem, Solution, solve
+from rigcal.problem.solver import Problem, Solution, prepare, solve
 from rigcal.problem.uncertainty import geometry_warnings, pose_std, weak_directions
 
 log = logging.getLogger(__name__)
@@ -57,7 +57,7 @@ class CalibrationOptions:
     initial: Mapping[str, np.ndarray] | None = None
     cross_validation_folds: int = 0
     max_noise_iterations: int = 100
-    noise_tolerance: float = 1e-4
+    noise_tolerance: float = 1e-3
     outlier_rule: OutlierRule = field(default_factory=OutlierRule)
     seed: int = 0
 
@@ -101,51 +101,87 @@ def _fit(
         )
         sol = solve(prob)
         return _Fit(dict(sol.poses), prob, sol, {}, 0, {})
-    # PSE with iterated diagonal noise
+    # PSE with iterated diagonal noise: one Gauss-Newton step, then a variance-component update,
+    # until the noise model stops changing; then a full solve, and a last check of the noise
     poses = {k: np.asarray(v) for k, v in poses0.items()}
     boards = initial_board_poses(dataset, poses)
     sigmas = {s.name: np.ones(2 if s.kind == SensorKind.RADAR else 3) for s in dataset.sensors}
-    converged_noise = False
-    sol = None
-    it = 0
-    for it in range(1, options.max_noise_iterations + 1):
-        prob = build_pse(dataset, poses, boards, reference, sigmas, options.hold_radar_plane)
-        sol = solve(prob)
-        if not sol.converged:
-            break
-        poses = {s: sol.poses[s] for s in dataset.names}
-        boards = {k: sol.poses[board_block(k)] for k in boards}
+    prob = build_pse(dataset, poses, boards, reference, sigmas, options.hold_radar_plane)
+    layout = prepare(prob)
+
+    def vce(problem: Problem, sol: Solution) -> tuple[dict[str, np.ndarray], float]:
         # variance component estimation: sigma^2 = sum(residual^2) / sum(redundancy) per sensor
         # axis; unlike the plain mean square it does not collapse when board poses absorb noise
         new = {}
-        for batch, r, red in zip(prob.observations, sol.residuals, sol.redundancy):
+        for batch, r, red in zip(problem.observations, sol.residuals, sol.redundancy):
             metric = r * batch.sigma  # back to metres
             var = np.sum(metric**2, axis=0) / np.maximum(np.sum(red, axis=0), 1e-9)
             new[batch.sensor] = np.maximum(np.sqrt(var), NOISE_FLOOR_M)
         change = max(float(np.max(np.abs(new[s] / sigmas[s] - 1.0))) for s in new)
+        return new, change
+
+    converged_noise = False
+    it = 0
+    sol = None
+    history: list[dict[str, np.ndarray]] = []
+    for it in range(1, options.max_noise_iterations + 1):
+        sol = solve(prob, want_redundancy=True, max_iterations=1, layout=layout)
+        prob = prob.with_poses(sol.poses)
+        new, change = vce(prob, sol)
+        history.append({k: np.log(v) for k, v in new.items()})
+        if len(history) == 3 and change >= options.noise_tolerance:
+            new = _aitken(history, new)
+            history = []
         sigmas.update(new)
+        prob = prob.with_sigmas(sigmas)
         if change < options.noise_tolerance:
-            converged_noise = True
-            break
-    assert sol is not None
-    if sol.converged and not converged_noise:
+            sol = solve(prob, want_redundancy=True, layout=layout)
+            if not sol.converged:
+                break
+            prob = prob.with_poses(sol.poses)
+            new, change = vce(prob, sol)
+            if change < options.noise_tolerance:
+                converged_noise = True
+                break
+            sigmas.update(new)
+            prob = prob.with_sigmas(sigmas)
+    if sol is not None and not sol.converged:
+        raise ConvergenceError(f"PSE did not converge: {sol.status}")
+    if not converged_noise:
         raise ConvergenceError(
             f"PSE: the per-sensor noise estimates did not converge in {options.max_noise_iterations} "
             "iterations; try mode fcpe, or check the detections for outliers"
         )
-    if converged_noise:
-        # final solve with the converged noise model (covariance consistent with it)
-        prob = build_pse(dataset, poses, boards, reference, sigmas, options.hold_radar_plane)
-        sol = solve(prob)
-        poses = {s: sol.poses[s] for s in dataset.names}
-        boards = {k: sol.poses[board_block(k)] for k in boards}
+    poses = {s: sol.poses[s] for s in dataset.names}
+    boards = {k: sol.poses[board_block(k)] for k in boards}
     noise = {s: tuple(float(x) for x in v) for s, v in sigmas.items()}
     return _Fit(poses, prob, sol, noise, it, boards)
+
+
+def _aitken(history: list[dict[str, np.ndarray]], latest: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Aitken extrapolation of a linearly converging fixed point (log noise), per component,
+    only where three successive iterates move monotonically with a contraction ratio < 0.95."""
+    x0, x1, x2 = history
+    out = {}
+    for k, v in latest.items():
+        d1, d2 = x1[k] - x0[k], x2[k] - x1[k]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = d2 / d1
+        ok = np.isfinite(ratio) & (ratio > 0) & (ratio < 0.95)
+        step = np.where(ok, d2 * ratio / (1.0 - np.where(ok, ratio, 0.0)), 0.0)
+        step = np.clip(step, -1.0, 1.0)  # at most a factor e per extrapolation
+        out[k] = np.maximum(np.exp(x2[k] + step), NOISE_FLOOR_M)
+    return out
 
 
 def _robust_screen(
     dataset: Dataset, reference: str, poses0: Mapping[str, np.ndarray], options: CalibrationOptions
 ) -> tuple[dict[str, set[int]], dict[str, np.ndarray]]:
+    """Outliers under the RANSAC initial poses; if any pair disagrees beyond the thresholds,
+    refine the poses with a robust (Cauchy) solve before judging."""
+    outliers = find_outliers(dataset, poses0, options.outlier_rule)
+    if not outliers:
+        return outliers, dict(poses0)
     prob = build_pairwise(dataset, poses0, reference, all_pairs(dataset), options.hold_radar_plane)
     sol = solve(prob, loss="cauchy", loss_scale=ROBUST_SCALE_M)
     poses = dict(sol.poses) if sol.converged else dict(poses0)

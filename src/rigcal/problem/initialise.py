@@ -12,7 +12,7 @@ import numpy as np
 
 from rigcal.dataset import Dataset, SensorKind
 from rigcal.errors import GeometryError, InputError
-from rigcal.geometry.align import kabsch
+from rigcal.geometry.align import kabsch, kabsch_batch
 from rigcal.geometry.se3 import invert
 from rigcal.problem.pairs import PairData, all_pairs, pair_data
 from rigcal.problem.residuals import MODEL_RADAR2D
@@ -63,18 +63,24 @@ def pair_transform(pair: PairData, robust: bool, seed: int = 0) -> tuple[np.ndar
         pick = rng.choice(len(combos), size=MAX_HYPOTHESES, replace=False)
         combos = [combos[i] for i in pick]
     thr = INLIER_M[pair.model]
+    idx = np.array(combos)  # (H, min_boards)
+    Ts = kabsch_batch(
+        pts[idx].reshape(len(combos), -1, 3), tgt[idx].reshape(len(combos), -1, 3)
+    )
+    ok = np.all(np.isfinite(Ts.reshape(len(combos), -1)), axis=1)
     best = None
-    for c in combos:
-        idx = list(c)
-        try:
-            T = kabsch(pts[idx].reshape(-1, 3), tgt[idx].reshape(-1, 3))
-        except GeometryError:
-            continue
-        err = _per_board_error(pair, T)
+    if np.any(ok):
+        Ts = Ts[ok]
+        x = np.einsum("hij,nj->hni", Ts[:, :3, :3], pair.points) + Ts[:, None, :3, 3]
+        h = project_2d(x) if pair.model == MODEL_RADAR2D else x
+        e2 = np.sum((h - pair.measured[None]) ** 2, axis=2).reshape(len(Ts), nb, pair.per_board)
+        err = np.sqrt(e2.mean(axis=2))  # (H, nb)
         inl = err < thr
-        score = (int(inl.sum()), -float(np.sum(np.minimum(err, thr))))
-        if best is None or score > best[0]:
-            best = (score, inl)
+        counts = inl.sum(axis=1)
+        spread = -np.sum(np.minimum(err, thr), axis=1)
+        order = np.lexsort((-spread, -counts))  # most inliers, then smallest errors
+        k = int(order[0])
+        best = ((int(counts[k]), float(spread[k])), inl[k])
     if best is None or best[0][0] < min_boards:
         return kabsch(pair.points, targets), all_in
     inl = best[1]

@@ -157,6 +157,16 @@ class Problem:
     def with_observations(self, observations: tuple[Observations, ...]) -> "Problem":
         return replace(self, observations=tuple(observations))
 
+    def with_sigmas(self, sigma_by_sensor: Mapping[str, np.ndarray]) -> "Problem":
+        """Same structure, observation noise replaced per observing sensor."""
+        return replace(
+            self,
+            observations=tuple(
+                b.with_sigma(sigma_by_sensor[b.sensor]) if b.sensor in sigma_by_sensor else b
+                for b in self.observations
+            ),
+        )
+
 
 @dataclass(frozen=True)
 class Solution:
@@ -224,6 +234,41 @@ class _Layout:
             )
             for b in problem.limits
         ]
+        self.dense = self.n_free <= SPARSE_ABOVE
+        # precomputed scatter of every batch's Jacobian blocks into the dense Jacobian
+        self.obs_scatter = []
+        row0 = 0
+        for b, (ia, ib) in zip(problem.observations, self.obs_idx):
+            n, d = b.size, b.dim
+            rr = row0 + np.arange(n * d).reshape(n, d)
+            slots = []
+            for idx in (ia, ib):
+                cc = np.broadcast_to(self.cols[idx][:, None, :], (n, d, 6))
+                keep = cc >= 0
+                rows = np.broadcast_to(rr[:, :, None], (n, d, 6))[keep]
+                slots.append((keep, rows, cc[keep], rows * max(self.n_free, 1) + cc[keep]))
+            self.obs_scatter.append(slots)
+            row0 += n * d
+        # per residual row, the (<= 12) columns it can touch; padded with column n_free
+        rc = []
+        for b, (ia, ib) in zip(problem.observations, self.obs_idx):
+            cc = np.concatenate([self.cols[ia], self.cols[ib]], axis=1)  # (n, 12)
+            cc = np.where(cc >= 0, cc, self.n_free)
+            rc.append(np.repeat(cc, b.dim, axis=0))
+        self.row_cols = np.concatenate(rc) if rc else np.zeros((0, 12), dtype=int)
+        self.lim_scatter = []
+        row0 = 0
+        for b, (ia, ib) in zip(problem.limits, self.lim_idx):
+            n = b.size
+            rr = row0 + np.arange(n)
+            slots = []
+            for idx in (ia, ib):
+                cc = self.cols[idx]
+                keep = cc >= 0
+                rows = np.broadcast_to(rr[:, None], (n, 6))[keep]
+                slots.append((keep, rows, cc[keep], rows * max(self.n_free, 1) + cc[keep]))
+            self.lim_scatter.append(slots)
+            row0 += n
         # all field-of-view limits as flat arrays
         if problem.limits:
             self.lim_ia = np.concatenate([ia for ia, _ in self.lim_idx])
@@ -232,6 +277,12 @@ class _Layout:
             self.lim_max = np.concatenate([b.max_elevation_rad for b in problem.limits])
         self.m_obs = sum(b.size * b.dim for b in problem.observations)
         self.m = self.m_obs + sum(b.size for b in problem.limits)
+
+
+def prepare(problem: Problem) -> "_Layout":
+    """Index bookkeeping of a problem's structure; reusable (``solve(..., layout=)``) by any
+    problem with the same pose blocks and bindings (e.g. after ``with_poses`` / new sigmas)."""
+    return _Layout(problem)
 
 
 def _robust(s: np.ndarray, loss: str, c: float) -> tuple[np.ndarray, np.ndarray]:
@@ -250,11 +301,10 @@ def _robust(s: np.ndarray, loss: str, c: float) -> tuple[np.ndarray, np.ndarray]
 
 def _evaluate(problem: Problem, layout: _Layout, T: np.ndarray, loss: str, c: float, want_jac: bool):
     """Robustly weighted residual vector, Jacobian and cost of the observations."""
-    r_parts, rows, cols, vals = [], [], [], []
+    r_parts, parts = [], []
     raw = []
     cost = 0.0
-    row0 = 0
-    for batch, (ia, ib) in zip(problem.observations, layout.obs_idx):
+    for batch, (ia, ib), slots in zip(problem.observations, layout.obs_idx, layout.obs_scatter):
         if batch.size == 0:
             raw.append(np.zeros((0, batch.dim)))
             continue
@@ -263,25 +313,36 @@ def _evaluate(problem: Problem, layout: _Layout, T: np.ndarray, loss: str, c: fl
         )
         raw.append(r)
         s = np.sum(r * r, axis=1)
+        if loss == "linear":
+            cost += 0.5 * float(np.sum(s))
+            r_parts.append(r.ravel())
+            if want_jac:
+                parts.append((JA, slots[0]))
+                parts.append((JB, slots[1]))
+            continue
         rho, drho = _robust(s, loss, c)
         cost += 0.5 * float(np.sum(rho))
         w = np.sqrt(drho)[:, None]
         r_parts.append((r * w).ravel())
         if want_jac:
-            n, d = r.shape
-            rr = row0 + np.arange(n * d).reshape(n, d)
-            for J, idx in ((JA, ia), (JB, ib)):
-                cc = layout.cols[idx][:, None, :]  # (n, 1, 6)
-                keep = np.broadcast_to(cc >= 0, (n, d, 6))
-                rows.append(np.broadcast_to(rr[:, :, None], (n, d, 6))[keep])
-                cols.append(np.broadcast_to(cc, (n, d, 6))[keep])
-                vals.append((J * w[:, :, None])[keep])
-        row0 += r.size
+            parts.append((JA * w[:, :, None], slots[0]))
+            parts.append((JB * w[:, :, None], slots[1]))
     rvec = np.concatenate(r_parts) if r_parts else np.zeros(0)
-    J = None
-    if want_jac:
-        J = _assemble(rows, cols, vals, rvec.size, layout.n_free)
+    J = _scatter(parts, rvec.size, layout) if want_jac else None
     return rvec, J, cost, raw
+
+
+def _scatter(parts, m, layout):
+    n = layout.n_free
+    if layout.dense:
+        J = np.zeros((m, n))
+        flat = J.reshape(-1)
+        for vals, (keep, _rows, _cols, idx) in parts:
+            flat[idx] = vals[keep]
+        return J
+    return _assemble(
+        [p[1][1] for p in parts], [p[1][2] for p in parts], [p[0][p[1][0]] for p in parts], m, n
+    )
 
 
 def _assemble(rows, cols, vals, m, n):
@@ -300,33 +361,39 @@ def _assemble(rows, cols, vals, m, n):
 
 def _constraints(problem: Problem, layout: _Layout, T: np.ndarray, want_jac: bool = True):
     """Field-of-view constraint values c = |elevation| - max (<= 0 is feasible) and dc/dx."""
-    values, rows, cols, vals = [], [], [], []
-    row0 = 0
+    if not problem.limits:
+        return np.zeros(0), (np.zeros((0, layout.n_free)) if want_jac else None)
     big = 1e6  # shift so the hinge is always active: gives |e| - max and its gradient
-    for batch, (ia, ib) in zip(problem.limits, layout.lim_idx):
-        if batch.size == 0:
-            continue
-        r, JA, JB = elevation_limit_residuals(
-            T[ia], T[ib], batch.points, batch.max_elevation_rad - big, 1.0
-        )
-        values.append(r[:, 0] - big)
-        if want_jac:
-            n = r.shape[0]
-            rr = row0 + np.arange(n)
-            for J, idx in ((JA, ia), (JB, ib)):
-                cc = layout.cols[idx]
-                keep = cc >= 0
-                rows.append(np.broadcast_to(rr[:, None], (n, 6))[keep])
-                cols.append(cc[keep])
-                vals.append(J[:, 0, :][keep])
-        row0 += batch.size
-    c = np.concatenate(values) if values else np.zeros(0)
-    G = None
-    if want_jac:
-        G = _assemble(rows, cols, vals, c.size, layout.n_free)
-        if scipy.sparse.issparse(G):
-            G = G.toarray()
+    r, JA, JB = elevation_limit_residuals(
+        T[layout.lim_ia], T[layout.lim_ib], layout.lim_points, layout.lim_max - big, 1.0
+    )
+    c = r[:, 0] - big
+    if not want_jac:
+        return c, None
+    G = np.zeros((c.size, layout.n_free))
+    flat = G.reshape(-1)
+    off = 0
+    for b, slots in zip(problem.limits, layout.lim_scatter):
+        for J, (keep, _rows, _cols, idx) in zip((JA, JB), slots):
+            flat[idx] = J[off : off + b.size, 0, :][keep]
+        off += b.size
     return c, G
+
+
+#: largest rotation [rad] / translation [m] of one pose in one step (a trust region that saves
+#: rejected trial steps along weakly observed directions)
+MAX_STEP_ROT = 0.1
+MAX_STEP_TRANS = 0.5
+
+
+def _cap_step(delta: np.ndarray, layout: _Layout) -> np.ndarray:
+    xi = np.zeros(layout.cols.shape)
+    mask = layout.cols >= 0
+    xi[mask] = delta[layout.cols[mask]]
+    rot = float(np.max(np.linalg.norm(xi[:, :3], axis=1)))
+    trans = float(np.max(np.linalg.norm(xi[:, 3:], axis=1)))
+    scale = min(1.0, MAX_STEP_ROT / max(rot, 1e-300), MAX_STEP_TRANS / max(trans, 1e-300))
+    return (delta * scale, True) if scale < 1.0 else (delta, False)
 
 
 def _retract(T: np.ndarray, layout: _Layout, delta: np.ndarray) -> np.ndarray:
@@ -366,16 +433,26 @@ def _constrained_step(M, g, c, G, active_tol=1e-9, max_rounds=60):
     d0 = -solve_m(g)
     if c.size == 0:
         return d0, np.zeros(0, dtype=bool), np.zeros(0)
-    MiGt = solve_m(G.T) if G.size else np.zeros((n, 0))
+    cache: dict[int, np.ndarray] = {}
+
+    def migt(idx):  # M^-1 G_i' for the active constraints only, computed once each
+        missing = [i for i in idx if i not in cache]
+        if missing:
+            cols = np.atleast_2d(solve_m(G[missing].T).T)
+            for i, col in zip(missing, cols):
+                cache[i] = col
+        return np.stack([cache[i] for i in idx], axis=1)
+
     active = c >= -active_tol
     seen = set()
     d, nu = d0, np.zeros(0)
     for _ in range(max_rounds):
         idx = np.flatnonzero(active)
         if idx.size:
-            S = G[idx] @ MiGt[:, idx]
+            Mi = migt(list(idx))
+            S = G[idx] @ Mi
             nu = np.linalg.lstsq(S, c[idx] + G[idx] @ d0, rcond=None)[0]
-            d = d0 - MiGt[:, idx] @ nu
+            d = d0 - Mi @ nu
         else:
             d, nu = d0, np.zeros(0)
         key = tuple(idx)
@@ -398,6 +475,28 @@ def _constrained_step(M, g, c, G, active_tol=1e-9, max_rounds=60):
     return d, active, mult
 
 
+def _leverage(J: np.ndarray, C: np.ndarray, row_cols: np.ndarray) -> np.ndarray:
+    """diag(J C J') using only each row's possible non-zero columns (<= 2 poses per row)."""
+    m, n = J.shape
+    if m == 0:
+        return np.zeros(0)
+    Jp = np.concatenate([J, np.zeros((m, 1))], axis=1)
+    Cp = np.zeros((n + 1, n + 1))
+    Cp[:n, :n] = C
+    vals = np.take_along_axis(Jp, row_cols, axis=1)
+    Csub = Cp[row_cols[:, :, None], row_cols[:, None, :]]
+    return np.einsum("mi,mij,mj->m", vals, Csub, vals)
+
+
+_FD_STEPS: dict[float, np.ndarray] = {}
+
+
+def _fd_steps(h: float) -> np.ndarray:
+    if h not in _FD_STEPS:
+        _FD_STEPS[h] = se3_exp(np.eye(6) * h)
+    return _FD_STEPS[h]
+
+
 def _constraint_hessian(problem, layout, T, mult, h=1e-6):
     """sum_i mult_i * Hessian(c_i) over the active limits (finite differences of analytic
     gradients, vectorised over the 12 local DOFs of each item's two poses)."""
@@ -409,7 +508,7 @@ def _constraint_hessian(problem, layout, T, mult, h=1e-6):
     ia, ib = layout.lim_ia[act], layout.lim_ib[act]
     pts, mx = layout.lim_points[act], layout.lim_max[act] - 1e6
     TA, TB = T[ia], T[ib]
-    steps = se3_exp(np.eye(6) * h)  # (6, 4, 4)
+    steps = _fd_steps(h)  # (6, 4, 4)
     k = act.size
     # 13 configurations per item: unperturbed, 6 perturbations of A, 6 of B
     TA_all = np.concatenate([TA[:, None], TA[:, None] @ steps[None], np.repeat(TA[:, None], 6, 1)], 1)
@@ -447,52 +546,75 @@ def _damped(A, lam):
     return A + np.diag(lam * np.maximum(d, 1e-12 * dmax) + 1e-300)
 
 
-def _lm(problem, layout, T, loss, loss_scale, max_iterations, ftol, xtol, gtol, fov_tol):
+def _lm(problem, layout, T, loss, loss_scale, max_iterations, ftol, xtol, gtol, fov_tol, step_sigma):
     """Levenberg-Marquardt with linearised field-of-view constraints (an active-set QP per
-    step, l1 merit function). Returns (T, iterations, converged, status, active mask)."""
+    step, l1 merit function, gain-ratio damping). Returns (T, iterations, converged, status,
+    active mask).
+
+    Besides the usual tolerances it stops when a step is statistically negligible: its
+    Mahalanobis length under the current covariance estimate is below ``step_sigma``.
+    """
 
     def merit(cost, c, rho):
         return cost + rho * float(np.sum(np.maximum(c, 0.0)))
 
+    dof = max(layout.m_obs - layout.n_free, 1)
     r, J, cost, _ = _evaluate(problem, layout, T, loss, loss_scale, True)
+    J_prev = J
     c, G = _constraints(problem, layout, T)
     A, g = _normal(J, r)
-    lam = 1e-4
+    lam = 1e-3
     nu_grow = 2.0
     rho = 1.0
     active = np.zeros(c.size, dtype=bool)
     mult = np.zeros(c.size)
+    # secant estimate of the residual curvature sum r_i Hess(r_i) that Gauss-Newton drops
+    # (Dennis-Gay-Welsch update, as in NL2SOL); dense problems only
+    Ssec = np.zeros((layout.n_free, layout.n_free)) if layout.dense else None
     it = 0
     for it in range(1, max_iterations + 1):
-        # Hessian of the Lagrangian: Gauss-Newton part plus the curvature of active constraints
+        # Hessian of the Lagrangian: Gauss-Newton part, secant correction, active constraints
         Hc = _constraint_hessian(problem, layout, T, mult) if c.size else None
         AL = A if Hc is None or not np.any(Hc) else (
             (A + scipy.sparse.csr_matrix(Hc)) if scipy.sparse.issparse(A) else A + Hc
         )
+        if Ssec is not None and np.any(Ssec):
+            AL = AL + Ssec
         feasible = c.size == 0 or float(np.max(c)) <= fov_tol
         if c.size == 0:
             gnorm = float(np.max(np.abs(g))) if g.size else 0.0
             if gnorm <= gtol * max(1.0, cost):
                 return T, it - 1, True, "gradient below tolerance", active
+        if c.size:
+            # penalty weight above the gradient's pull on the constraints
+            rho = max(rho, 10.0 * float(np.linalg.norm(g)) / max(1e-12, float(np.min(np.linalg.norm(G, axis=1)))))
+        m_old = merit(cost, c, rho)
         accepted = False
         while lam < 1e16:
             delta, act, mult_new = _constrained_step(_damped(AL, lam), g, c, G)
+            delta, capped = _cap_step(delta, layout)
             step = float(np.linalg.norm(delta))
             T_new = _retract(T, layout, delta)
-            cost_new = _evaluate(problem, layout, T_new, loss, loss_scale, False)[2]
-            c_new = _constraints(problem, layout, T_new, want_jac=False)[0]
-            if c.size:
-                # penalty weight above the gradient's pull on the active constraints
-                rho = max(rho, 10.0 * float(np.linalg.norm(g)) / max(1e-12, float(np.min(np.linalg.norm(G, axis=1)))))
-            m_old, m_new = merit(cost, c, rho), merit(cost_new, c_new, rho)
-            predicted = -(g @ delta + 0.5 * delta @ (A @ delta))
+            r_new, J_new, cost_new, _ = _evaluate(problem, layout, T_new, loss, loss_scale, True)
+            c_new, G_new = _constraints(problem, layout, T_new)
+            m_new = merit(cost_new, c_new, rho)
+            Ad = A @ delta
+            predicted = -(g @ delta + 0.5 * delta @ Ad)
             if c.size:
                 lin = c + G @ delta
                 predicted += rho * float(np.sum(np.maximum(c, 0)) - np.sum(np.maximum(lin, 0)))
             if m_new < m_old or (m_new <= m_old and step <= xtol):
                 accepted = True
                 rel = (m_old - m_new) / max(m_old, 1e-300)
-                T, cost, c, active, mult = T_new, cost_new, c_new, act, mult_new
+                sigma0_sq = max(2.0 * cost / dof, 1e-300)
+                # only an (almost) undamped, uncapped step measures distance to the optimum
+                maha = (
+                    np.inf
+                    if capped or lam > 1e-6
+                    else float(np.sqrt(max(delta @ Ad, 0.0) / sigma0_sq))
+                )
+                T, cost, c, G, active, mult = T_new, cost_new, c_new, G_new, act, mult_new
+                r, J = r_new, J_new
                 # gain ratio: damp more when the quadratic model predicted the decrease badly
                 gain = (m_old - m_new) / predicted if predicted > 0 else 0.0
                 lam = min(max(lam * max(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3), 1e-12), 1e12)
@@ -506,12 +628,27 @@ def _lm(problem, layout, T, loss, loss_scale, max_iterations, ftol, xtol, gtol, 
             if feasible:
                 return T, it, True, "no further decrease possible (at a minimum)", active
             return T, it, False, "cannot satisfy the field-of-view constraints", active
-        r, J, cost, _ = _evaluate(problem, layout, T, loss, loss_scale, True)
-        c, G = _constraints(problem, layout, T)
+        g_old, J_old_t_r = g, None
+        if Ssec is not None:
+            J_old_t_r = J_prev.T @ r
         A, g = _normal(J, r)
+        if Ssec is not None:
+            y = g - g_old
+            y_sharp = g - J_old_t_r
+            sy = float(delta @ y)
+            if sy > 1e-300:
+                Ss = Ssec @ delta
+                sSs = float(delta @ Ss)
+                tau = min(1.0, abs(float(delta @ y_sharp)) / sSs) if sSs > 0 else 1.0
+                Ssec = tau * Ssec
+                v = y_sharp - Ssec @ delta
+                Ssec = Ssec + (np.outer(v, y) + np.outer(y, v)) / sy - float(v @ delta) * np.outer(y, y) / sy**2
+        J_prev = J
         feasible = c.size == 0 or float(np.max(c)) <= fov_tol
         if feasible and rel <= ftol:
             return T, it, True, "relative cost change below tolerance", active
+        if feasible and maha <= step_sigma and 2.0 * cost / dof > 1e-20:
+            return T, it, True, f"step below {step_sigma:g} sigma", active
         if feasible and step <= xtol * (1.0 + float(np.linalg.norm(T[:, :3, 3]))):
             return T, it, True, "step below tolerance", active
     return T, it, False, "iteration limit reached", active
@@ -526,6 +663,9 @@ def solve(
     ftol: float = 1e-12,
     xtol: float = 1e-12,
     gtol: float = 1e-10,
+    step_sigma: float = 1e-3,
+    want_redundancy: bool = False,
+    layout: "_Layout | None" = None,
 ) -> Solution:
     """Minimise the problem's cost with Levenberg-Marquardt on the pose manifold, subject to the
     field-of-view limits (paper eq. 4) as inequality constraints.
@@ -535,12 +675,13 @@ def solve(
     """
     if loss not in LOSSES:
         raise ConfigError(f"unknown robust loss {loss!r} (expected one of {LOSSES})")
-    layout = _Layout(problem)
+    layout = layout if layout is not None else prepare(problem)
     T = np.stack([p.T for p in problem.poses]).astype(float)
     if layout.n_free == 0:
         raise ConfigError("nothing to estimate: every pose is held fixed")
     T, it, converged, status, active = _lm(
-        problem, layout, T, loss, loss_scale, max_iterations, ftol, xtol, gtol, problem.fov_tolerance_rad
+        problem, layout, T, loss, loss_scale, max_iterations, ftol, xtol, gtol,
+        problem.fov_tolerance_rad, step_sigma,
     )
     r, J, cost, raw = _evaluate(problem, layout, T, loss, loss_scale, True)
     A, g = _normal(J, r)
@@ -557,24 +698,28 @@ def solve(
     binding = np.flatnonzero(c >= -1e-6) if c.size else np.zeros(0, dtype=int)
     dof = layout.m_obs - n + int(binding.size)
     rank_deficient = False
-    if binding.size:
-        # covariance on the manifold of binding constraints: Z (Z' A Z)^-1 Z'
-        Z = scipy.linalg.null_space(G[binding])
-        inner = Z.T @ A_dense @ Z
-        cov = Z @ np.linalg.pinv(inner, rcond=1e-12) @ Z.T
-        rank_deficient = np.linalg.matrix_rank(inner) < inner.shape[0]
-    else:
-        try:
-            cf = scipy.linalg.cho_factor(A_dense, check_finite=False)
-            cov = scipy.linalg.cho_solve(cf, np.eye(n), check_finite=False)
-            if not np.all(np.isfinite(cov)):
-                raise np.linalg.LinAlgError
-        except (np.linalg.LinAlgError, ValueError):
+    try:
+        cf = scipy.linalg.cho_factor(A_dense, check_finite=False)
+        cov = scipy.linalg.cho_solve(cf, np.eye(n), check_finite=False)
+        if not np.all(np.isfinite(cov)):
+            raise np.linalg.LinAlgError
+        if binding.size:
+            # covariance on the manifold of binding constraints (Schur form of Z (Z'AZ)^-1 Z')
+            Gb = G[binding]
+            CG = cov @ Gb.T
+            S = Gb @ CG
+            cov = cov - CG @ np.linalg.lstsq(S, CG.T, rcond=None)[0]
+            cov = 0.5 * (cov + cov.T)
+    except (np.linalg.LinAlgError, ValueError):
+        rank_deficient = True
+        if binding.size:
+            Z = scipy.linalg.null_space(G[binding])
+            cov = Z @ np.linalg.pinv(Z.T @ A_dense @ Z, rcond=1e-12) @ Z.T
+        else:
             cov = np.linalg.pinv(A_dense, rcond=1e-12)
-            rank_deficient = True
     # redundancy numbers: 1 - diag(J C J') in the whitened space (unscaled covariance)
     Jd = J.toarray() if scipy.sparse.issparse(J) else J
-    lev = np.einsum("ij,ij->i", Jd @ cov, Jd)
+    lev = _leverage(Jd, cov, layout.row_cols) if want_redundancy else np.zeros(J.shape[0])
     redundancy = []
     off = 0
     for x in raw:

@@ -119,11 +119,9 @@ def test_mcpe_differs_from_kabsch_initial_guess(real_dataset, real_calibration):
     # the radar's Kabsch guess assumes the reflectors on the radar plane: MCPE moves it
     assert np.linalg.norm(poses["radar1"][:3, 3] - init["radar1"][:3, 3]) > 1 * MM
     assert _mcpe_cost(real_dataset, pairs, poses) < _mcpe_cost(real_dataset, pairs, init)
-    # for the lidar-camera pair, Kabsch is already the least-squares optimum MCPE finds.
-    # Known gap (issue #2 notes): MCPE's pairs share one LM damping, so the radar pair's active
-    # field-of-view constraint stops the joint iteration ~10 um short for the camera; the fix is
-    # to solve MCPE pairs as separate problems. Until then: within 0.1 mm / 1e-4.
-    np.testing.assert_allclose(poses["camera1"], init["camera1"], atol=1e-4)
+    # for the lidar-camera pair, Kabsch is already the least-squares optimum MCPE finds
+    # (MCPE solves each pair with the reference as its own problem)
+    np.testing.assert_allclose(poses["camera1"], init["camera1"], atol=1e-9)
 
 
 @pytest.mark.parametrize("mode", ["mcpe", "fcpe", "pse"])

@@ -6,7 +6,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Mapping
 
 import numpy as np
@@ -28,7 +28,7 @@ from rigcal.problem.initialise import default_reference, initial_poses
 from rigcal.problem.outliers import OutlierRule, find_outliers
 from rigcal.problem.pairs import all_pairs, pair_data
 from rigcal.problem.result import CalibrationResult, SensorEstimate
-from rigcal.problem.solver import Problem, Solution, prepare, solve
+from rigcal.problem.solver import Problem, Solution, merge_independent, prepare, solve
 from rigcal.problem.uncertainty import geometry_warnings, pose_std, weak_directions
 
 log = logging.getLogger(__name__)
@@ -95,11 +95,20 @@ def _fit(
     poses0: Mapping[str, np.ndarray],
     options: CalibrationOptions,
 ) -> _Fit:
-    if mode in ("mcpe", "fcpe"):
-        prob = build_pairwise(
-            dataset, poses0, reference, pairs_for_mode(dataset, mode, reference), options.hold_radar_plane
-        )
+    if mode == "fcpe":
+        prob = build_pairwise(dataset, poses0, reference, all_pairs(dataset), options.hold_radar_plane)
         sol = solve(prob)
+        return _Fit(dict(sol.poses), prob, sol, {}, 0, {})
+    if mode == "mcpe":
+        # each sensor against the reference: independent pairwise problems (paper eq. 6)
+        probs, sols = [], []
+        for pair in pairs_for_mode(dataset, mode, reference):
+            other = pair[1] if pair[0] == reference else pair[0]
+            prob = build_pairwise(dataset, poses0, reference, [pair], options.hold_radar_plane)
+            prob = replace(prob, poses=tuple(p for p in prob.poses if p.name in (reference, other)))
+            probs.append(prob)
+            sols.append(solve(prob))
+        prob, sol = merge_independent(probs, sols)
         return _Fit(dict(sol.poses), prob, sol, {}, 0, {})
     # PSE with iterated diagonal noise: one Gauss-Newton step, then a variance-component update,
     # until the noise model stops changing; then a full solve, and a last check of the noise

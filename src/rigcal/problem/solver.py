@@ -744,3 +744,52 @@ def solve(
         rank_deficient=rank_deficient,
         redundancy=tuple(redundancy),
     )
+
+
+def merge_independent(problems: list[Problem], solutions: list[Solution]) -> tuple[Problem, Solution]:
+    """One problem/solution from independently solved problems that share only fixed poses
+    (e.g. MCPE's pairs, each sharing the held reference). Covariances are block-diagonal."""
+    blocks: dict[str, PoseBlock] = {}
+    for prob, sol in zip(problems, solutions):
+        for p in prob.poses:
+            if any(p.free) and p.name in blocks and any(blocks[p.name].free):
+                raise ConfigError(f"pose '{p.name}' is free in more than one problem")
+            if p.name not in blocks or any(p.free):
+                blocks[p.name] = replace(p, T=sol.poses[p.name])
+    merged = Problem(
+        tuple(blocks.values()),
+        tuple(b for p in problems for b in p.observations),
+        tuple(b for p in problems for b in p.limits),
+    )
+    cols: dict[str, np.ndarray] = {}
+    covs = []
+    offset = 0
+    for sol in solutions:
+        n = sol.covariance.shape[0]
+        for name, c in sol.columns.items():
+            if np.any(c >= 0):
+                cols[name] = np.where(c >= 0, c + offset, -1)
+            else:
+                cols.setdefault(name, c.copy())
+        covs.append(sol.covariance)
+        offset += n
+    poses: dict[str, np.ndarray] = {}
+    for sol in solutions:
+        poses.update(sol.poses)
+    failed = [s for s in solutions if not s.converged]
+    return merged, Solution(
+        poses={name: poses[name] for name in blocks},
+        converged=not failed,
+        status=failed[0].status if failed else "all sub-problems converged",
+        iterations=max(s.iterations for s in solutions),
+        cost=sum(s.cost for s in solutions),
+        covariance=scipy.linalg.block_diag(*covs) if covs else np.zeros((0, 0)),
+        columns={name: cols[name] for name in blocks},
+        residuals=tuple(r for s in solutions for r in s.residuals),
+        limit_residuals=tuple(r for s in solutions for r in s.limit_residuals),
+        sigma0_sq=float(np.mean([s.sigma0_sq for s in solutions])),
+        dof=sum(s.dof for s in solutions),
+        gradient_norm=max(s.gradient_norm for s in solutions),
+        rank_deficient=any(s.rank_deficient for s in solutions),
+        redundancy=tuple(r for s in solutions for r in s.redundancy),
+    )

@@ -131,11 +131,18 @@ def _fit(
 
     converged_noise = False
     it = 0
-    sol = None
+    # first a full solve with identity noise (the paper's starting point) so the poses are
+    # converged before the one-step noise updates begin
+    sol = solve(prob, layout=layout)
+    if not sol.converged:
+        raise ConvergenceError(f"PSE did not converge: {sol.status}")
     history: list[dict[str, np.ndarray]] = []
     for it in range(1, options.max_noise_iterations + 1):
-        sol = solve(prob, want_redundancy=True, max_iterations=1, layout=layout)
-        prob = prob.with_poses(sol.poses)
+        sol = solve(
+            prob, want_redundancy=True, max_iterations=1, layout=layout,
+            warm=sol.extra.get("lm_state"),
+            start=sol.poses,
+        )
         new, change = vce(prob, sol)
         history.append({k: np.log(v) for k, v in new.items()})
         if len(history) == 3 and change >= options.noise_tolerance:
@@ -144,23 +151,23 @@ def _fit(
         sigmas.update(new)
         prob = prob.with_sigmas(sigmas)
         if change < options.noise_tolerance:
-            sol = solve(prob, want_redundancy=True, layout=layout)
+            sol = solve(prob, want_redundancy=True, layout=layout, start=sol.poses)
             if not sol.converged:
                 break
-            prob = prob.with_poses(sol.poses)
             new, change = vce(prob, sol)
             if change < options.noise_tolerance:
                 converged_noise = True
                 break
             sigmas.update(new)
             prob = prob.with_sigmas(sigmas)
-    if sol is not None and not sol.converged:
-        raise ConvergenceError(f"PSE did not converge: {sol.status}")
     if not converged_noise:
+        if sol is not None and sol.status != "iteration limit reached" and not sol.converged:
+            raise ConvergenceError(f"PSE did not converge: {sol.status}")
         raise ConvergenceError(
             f"PSE: the per-sensor noise estimates did not converge in {options.max_noise_iterations} "
             "iterations; try mode fcpe, or check the detections for outliers"
         )
+    prob = prob.with_poses(sol.poses)
     poses = {s: sol.poses[s] for s in dataset.names}
     boards = {k: sol.poses[board_block(k)] for k in boards}
     noise = {s: tuple(float(x) for x in v) for s, v in sigmas.items()}

@@ -20,7 +20,7 @@ import numpy as np
 
 from rigcal.dataset import Dataset, SensorKind
 from rigcal.errors import ConfigError
-from rigcal.geometry.align import kabsch
+from rigcal.geometry.align import kabsch_batch
 from rigcal.problem.pairs import PairData, all_pairs, pair_data, reflector_points
 from rigcal.problem.residuals import MODEL_POINT, MODEL_RADAR2D
 from rigcal.problem.solver import ALL_FREE, ElevationLimits, Observations, PoseBlock, Problem
@@ -125,15 +125,20 @@ def pse_boards(dataset: Dataset) -> list[int]:
 def initial_board_poses(dataset: Dataset, poses: Mapping[str, np.ndarray]) -> dict[int, np.ndarray]:
     """``T_reference_board`` per board: the mean over 3D sensors of Kabsch fits of the board."""
     model = board_centres(dataset.board)
-    out = {}
-    for k in pse_boards(dataset):
-        pts = []
-        for s in dataset.sensors:
-            if s.kind.is_point_cloud and s.valid[k]:
-                T = poses[s.name]
-                pts.append(s.points[k] @ T[:3, :3].T + T[:3, 3])
-        out[k] = kabsch(model, np.mean(pts, axis=0))
-    return out
+    ks = pse_boards(dataset)
+    if not ks:
+        return {}
+    total = np.zeros((dataset.num_boards, 4, 3))
+    count = np.zeros(dataset.num_boards)
+    for s in dataset.sensors:
+        if s.kind.is_point_cloud:
+            T = poses[s.name]
+            v = s.valid
+            total[v] += s.points[v] @ T[:3, :3].T + T[:3, 3]
+            count[v] += 1
+    mean = total[ks] / count[ks, None, None]
+    Ts = kabsch_batch(np.broadcast_to(model, mean.shape), mean)
+    return {k: Ts[i] for i, k in enumerate(ks)}
 
 
 def build_pse(

@@ -546,7 +546,7 @@ def _damped(A, lam):
     return A + np.diag(lam * np.maximum(d, 1e-12 * dmax) + 1e-300)
 
 
-def _lm(problem, layout, T, loss, loss_scale, max_iterations, ftol, xtol, gtol, fov_tol, step_sigma):
+def _lm(problem, layout, T, loss, loss_scale, max_iterations, ftol, xtol, gtol, fov_tol, step_sigma, warm=None):
     """Levenberg-Marquardt with linearised field-of-view constraints (an active-set QP per
     step, l1 merit function, gain-ratio damping). Returns (T, iterations, converged, status,
     active mask).
@@ -563,7 +563,8 @@ def _lm(problem, layout, T, loss, loss_scale, max_iterations, ftol, xtol, gtol, 
     J_prev = J
     c, G = _constraints(problem, layout, T)
     A, g = _normal(J, r)
-    lam = 1e-3
+    warm = warm or {}
+    lam = warm.get("lam", 1e-4)
     nu_grow = 2.0
     rho = 1.0
     active = np.zeros(c.size, dtype=bool)
@@ -571,8 +572,14 @@ def _lm(problem, layout, T, loss, loss_scale, max_iterations, ftol, xtol, gtol, 
     # secant estimate of the residual curvature sum r_i Hess(r_i) that Gauss-Newton drops
     # (Dennis-Gay-Welsch update, as in NL2SOL); dense problems only
     Ssec = np.zeros((layout.n_free, layout.n_free)) if layout.dense else None
+    if Ssec is not None and warm.get("secant") is not None and warm["secant"].shape == Ssec.shape:
+        Ssec = warm["secant"].copy()
+    state = {"lam": lam, "secant": Ssec}
+    linz = {}
     it = 0
+    resets = 0
     for it in range(1, max_iterations + 1):
+        linz.update(r=r, J=J, A=A, g=g, c=c, G=G, cost=cost)
         # Hessian of the Lagrangian: Gauss-Newton part, secant correction, active constraints
         Hc = _constraint_hessian(problem, layout, T, mult) if c.size else None
         AL = A if Hc is None or not np.any(Hc) else (
@@ -584,7 +591,8 @@ def _lm(problem, layout, T, loss, loss_scale, max_iterations, ftol, xtol, gtol, 
         if c.size == 0:
             gnorm = float(np.max(np.abs(g))) if g.size else 0.0
             if gnorm <= gtol * max(1.0, cost):
-                return T, it - 1, True, "gradient below tolerance", active
+                state.update(lam=lam, secant=Ssec)
+                return T, it - 1, True, "gradient below tolerance", active, state, linz
         if c.size:
             # penalty weight above the gradient's pull on the constraints
             rho = max(rho, 10.0 * float(np.linalg.norm(g)) / max(1e-12, float(np.min(np.linalg.norm(G, axis=1)))))
@@ -625,9 +633,26 @@ def _lm(problem, layout, T, loss, loss_scale, max_iterations, ftol, xtol, gtol, 
             lam *= nu_grow
             nu_grow *= 2.0
         if not accepted:
-            if feasible:
-                return T, it, True, "no further decrease possible (at a minimum)", active
-            return T, it, False, "cannot satisfy the field-of-view constraints", active
+            if Ssec is not None and np.any(Ssec) and resets < 3:
+                # the secant curvature estimate may have spoiled the model: drop it, retry
+                Ssec = np.zeros_like(Ssec)
+                lam = 1e-3
+                nu_grow = 2.0
+                resets += 1
+                continue
+            if not feasible:
+                return T, it, False, "cannot satisfy the field-of-view constraints", active, state, linz
+            # no decrease possible: a minimum only if the undamped step is negligible
+            d_newton, _, _ = _constrained_step(_damped(A, 1e-12), g, c, G)
+            sigma0_sq = max(2.0 * cost / dof, 1e-300)
+            maha0 = float(np.sqrt(max(d_newton @ (A @ d_newton), 0.0) / sigma0_sq))
+            if maha0 <= 10.0 * step_sigma or 2.0 * cost / dof <= 1e-20:
+                return T, it, True, "no further decrease possible (at a minimum)", active, state, linz
+            return (
+                T, it, False,
+                f"stalled: no decrease possible although the Newton step is {maha0:.3g} sigma",
+                active, state, linz,
+            )
         g_old, J_old_t_r = g, None
         if Ssec is not None:
             J_old_t_r = J_prev.T @ r
@@ -644,14 +669,17 @@ def _lm(problem, layout, T, loss, loss_scale, max_iterations, ftol, xtol, gtol, 
                 v = y_sharp - Ssec @ delta
                 Ssec = Ssec + (np.outer(v, y) + np.outer(y, v)) / sy - float(v @ delta) * np.outer(y, y) / sy**2
         J_prev = J
+        state.update(lam=lam, secant=Ssec)
+        linz.update(r=r, J=J, A=A, g=g, c=c, G=G, cost=cost)
         feasible = c.size == 0 or float(np.max(c)) <= fov_tol
         if feasible and rel <= ftol:
-            return T, it, True, "relative cost change below tolerance", active
+            return T, it, True, "relative cost change below tolerance", active, state, linz
         if feasible and maha <= step_sigma and 2.0 * cost / dof > 1e-20:
-            return T, it, True, f"step below {step_sigma:g} sigma", active
+            return T, it, True, f"step below {step_sigma:g} sigma", active, state, linz
         if feasible and step <= xtol * (1.0 + float(np.linalg.norm(T[:, :3, 3]))):
-            return T, it, True, "step below tolerance", active
-    return T, it, False, "iteration limit reached", active
+            return T, it, True, "step below tolerance", active, state, linz
+    linz.update(r=r, J=J, A=A, g=g, c=c, G=G, cost=cost)
+    return T, it, False, "iteration limit reached", active, state, linz
 
 
 def solve(
@@ -666,6 +694,8 @@ def solve(
     step_sigma: float = 1e-3,
     want_redundancy: bool = False,
     layout: "_Layout | None" = None,
+    warm: dict | None = None,
+    start: Mapping[str, np.ndarray] | None = None,
 ) -> Solution:
     """Minimise the problem's cost with Levenberg-Marquardt on the pose manifold, subject to the
     field-of-view limits (paper eq. 4) as inequality constraints.
@@ -676,16 +706,24 @@ def solve(
     if loss not in LOSSES:
         raise ConfigError(f"unknown robust loss {loss!r} (expected one of {LOSSES})")
     layout = layout if layout is not None else prepare(problem)
-    T = np.stack([p.T for p in problem.poses]).astype(float)
+    if start is not None:  # starting poses other than the problem's own (same structure)
+        T = np.stack([np.asarray(start.get(p.name, p.T), dtype=float) for p in problem.poses])
+    else:
+        T = np.stack([p.T for p in problem.poses]).astype(float)
     if layout.n_free == 0:
         raise ConfigError("nothing to estimate: every pose is held fixed")
-    T, it, converged, status, active = _lm(
+    T, it, converged, status, active, state, lin = _lm(
         problem, layout, T, loss, loss_scale, max_iterations, ftol, xtol, gtol,
-        problem.fov_tolerance_rad, step_sigma,
+        problem.fov_tolerance_rad, step_sigma, warm,
     )
-    r, J, cost, raw = _evaluate(problem, layout, T, loss, loss_scale, True)
-    A, g = _normal(J, r)
-    c, G = _constraints(problem, layout, T)
+    if loss == "linear" and "J" in lin:
+        # the last linearisation of the iterations is at the returned poses
+        raw = _evaluate(problem, layout, T, loss, loss_scale, False)[3]
+        r, J, A, g, c, G = (lin[k] for k in ("r", "J", "A", "g", "c", "G"))
+    else:
+        r, J, cost, raw = _evaluate(problem, layout, T, loss, loss_scale, True)
+        A, g = _normal(J, r)
+        c, G = _constraints(problem, layout, T)
     gnorm = float(np.max(np.abs(g))) if g.size else 0.0
     lim_raw = []
     off = 0
@@ -743,6 +781,7 @@ def solve(
         gradient_norm=gnorm,
         rank_deficient=rank_deficient,
         redundancy=tuple(redundancy),
+        extra={"lm_state": state},
     )
 
 

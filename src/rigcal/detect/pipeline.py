@@ -1,0 +1,232 @@
+"""Detection over a recording: every sensor's frames through its detector, then board
+placements (stable periods matched across sensors), then a :class:`Dataset` for calibration.
+
+The library never prints: progress goes to an optional callback ``progress(done, total)``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections import Counter
+from dataclasses import dataclass, field
+from typing import Any, Callable, Iterator, Mapping, Protocol
+
+import numpy as np
+
+from rigcal.dataset import Dataset, SensorKind
+from rigcal.detect.placements import (
+    Placement,
+    SensorSpec,
+    dataset_from_placements,
+    match_placements,
+    placements_from_windows,
+    stable_periods,
+)
+from rigcal.detect.result import BoardDetection, DetectionFailure, DetectionResult
+from rigcal.errors import InputError
+from rigcal.io.rig_config import DetectionRig, SensorSetup
+from rigcal.recording import Frame, ImageFrame, PointCloudFrame, RadarFrame, StereoFrame
+
+
+class RecordingLike(Protocol):
+    """What detection needs from a recording (a bag or a folder)."""
+
+    def topics(self) -> Mapping[str, str]: ...
+
+    def count(self, topic: str) -> int: ...
+
+    def frames(self, sensor_topics: Mapping[str, tuple[str, str]]) -> Iterator[Frame]: ...
+
+
+Detector = Callable[[Frame], DetectionResult]
+
+
+def _config(cls: type, overrides: Mapping[str, Any], where: str):
+    allowed = [f.name for f in dataclasses.fields(cls)]
+    unknown = [k for k in overrides if k not in allowed]
+    if unknown:
+        raise InputError(f"{where}: unknown detector setting(s) {unknown} (allowed: {', '.join(allowed)})")
+    converted = {}
+    for k, v in overrides.items():
+        converted[k] = tuple(v) if isinstance(v, list) else v
+    try:
+        return cls(**converted)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{where}: {exc}") from None
+
+
+def build_detector(setup: SensorSetup, rig: DetectionRig, recording: RecordingLike | None = None) -> Detector:
+    """The detector function for one sensor of the rig (heavy imports happen here)."""
+    where = f"{rig.source}: sensor '{setup.name}'"
+    board = rig.board
+    if setup.kind in (SensorKind.RADAR, SensorKind.RADAR3D):
+        from rigcal.detect.radar import RadarDetectorConfig, detect_board_radar
+
+        cfg = _config(RadarDetectorConfig, setup.detector, where)
+        return lambda f: detect_board_radar(f, cfg)
+    if setup.kind == SensorKind.LIDAR:
+        from rigcal.detect.lidar import LidarDetectorConfig, detect_board_lidar
+
+        cfg = _config(LidarDetectorConfig, setup.detector, where)
+        return lambda f: detect_board_lidar(f, board, cfg)
+    if setup.input == "mono":
+        from rigcal.detect.mono import MonoDetectorConfig, detect_board_mono
+
+        camera = _camera_model(setup, rig, recording)
+        cfg = _config(MonoDetectorConfig, setup.detector, where)
+        return lambda f: detect_board_mono(f, camera, board, cfg)
+    from rigcal.detect.stereo import StereoDetectorConfig, detect_board_stereo
+
+    cfg = _config(StereoDetectorConfig, setup.detector, where)
+    if setup.input == "stereo_cloud":
+        return lambda f: detect_board_stereo(f, board, cfg)
+    from rigcal.sensors.stereo import StereoRig, point_cloud_from_pair
+
+    st = setup.stereo
+    stereo_rig = None
+
+    def detect_pair(f: Frame) -> DetectionResult:
+        nonlocal stereo_rig
+        assert isinstance(f, StereoFrame)
+        if stereo_rig is None:
+            h, w = f.left.shape[:2]
+            stereo_rig = StereoRig(
+                fx=st["fx"], fy=st["fy"], cx=st["cx"], cy=st["cy"], baseline_m=st["baseline_m"],
+                width=w, height=h,
+            )
+        return detect_board_stereo(point_cloud_from_pair(f, stereo_rig), board, cfg)
+
+    return detect_pair
+
+
+def _camera_model(setup: SensorSetup, rig: DetectionRig, recording: RecordingLike | None):
+    if setup.intrinsics is not None:
+        from rigcal.io.intrinsics import read_intrinsics
+
+        return read_intrinsics(setup.intrinsics)
+    if recording is None or not hasattr(recording, "camera_info"):
+        raise InputError(
+            f"{rig.source}: sensor '{setup.name}': camera_info_topic needs a recording that has it"
+        )
+    from rigcal.io.intrinsics import camera_from_info
+
+    return camera_from_info(recording.camera_info(setup.camera_info_topic), f"{setup.camera_info_topic}")
+
+
+@dataclass(frozen=True)
+class SensorStats:
+    frames: int = 0
+    detections: int = 0
+    failures: Mapping[str, int] = field(default_factory=dict)
+    stable_periods: int = 0
+    placements: int = 0
+
+
+@dataclass(frozen=True)
+class DetectionRun:
+    """Everything detection produced: per-sensor results, placements, the dataset, statistics."""
+
+    results: Mapping[str, tuple[DetectionResult, ...]]
+    placements: tuple[Placement, ...]
+    dataset: Dataset
+    stats: Mapping[str, SensorStats]
+
+
+def _topics(setup: SensorSetup) -> dict[str, tuple[str, str]]:
+    kind = {"cloud": "lidar", "stereo_cloud": "camera", "mono": "image", "stereo_pair": "image", "radar": setup.kind.value}[setup.input]
+    if setup.input == "stereo_pair":
+        return {f"{setup.name}#left": (setup.topic, "image"), f"{setup.name}#right": (setup.right_topic, "image")}
+    return {setup.name: (setup.topic, kind)}
+
+
+def _pair_stereo(name: str, pending: dict, frame: ImageFrame, tol_ns: int = 5_000_000):
+    """Pair left/right images of one stereo sensor by timestamp; returns a StereoFrame or None."""
+    side = "left" if frame.sensor.endswith("#left") else "right"
+    other = "right" if side == "left" else "left"
+    for t, img in list(pending[other].items()):
+        if abs(t - frame.t_ns) <= tol_ns:
+            del pending[other][t]
+            left, right = (frame.image, img) if side == "left" else (img, frame.image)
+            if left.ndim == 3:
+                import cv2
+
+                left = cv2.cvtColor(left, cv2.COLOR_BGR2GRAY)
+                right = cv2.cvtColor(right, cv2.COLOR_BGR2GRAY)
+            return StereoFrame(name, min(t, frame.t_ns), left, right)
+    pending[side][frame.t_ns] = frame.image
+    # forget unmatched images that are far behind
+    for s in ("left", "right"):
+        for t in [t for t in pending[s] if frame.t_ns - t > 10 * tol_ns]:
+            del pending[s][t]
+    return None
+
+
+def run_detection(
+    recording: RecordingLike,
+    rig: DetectionRig,
+    progress: Callable[[int, int], None] | None = None,
+) -> DetectionRun:
+    """Detect the board in every frame of every sensor, then find the placements."""
+    topics: dict[str, tuple[str, str]] = {}
+    for s in rig.sensors:
+        topics.update(_topics(s))
+    available = recording.topics()
+    for pseudo, (topic, _) in topics.items():
+        if topic not in available:
+            sensor = pseudo.split("#")[0]
+            raise InputError(
+                f"sensor '{sensor}': topic {topic} is not in the recording "
+                f"(topics: {', '.join(sorted(available)) or 'none'})"
+            )
+    detectors = {s.name: build_detector(s, rig, recording) for s in rig.sensors}
+    total = sum(recording.count(t) for t, _ in topics.values())
+    results: dict[str, list[DetectionResult]] = {s.name: [] for s in rig.sensors}
+    frames = Counter()
+    pending: dict[str, dict] = {s.name: {"left": {}, "right": {}} for s in rig.sensors if s.input == "stereo_pair"}
+    done = 0
+    for frame in recording.frames(topics):
+        done += 1
+        name = frame.sensor.split("#")[0]
+        if frame.sensor.endswith(("#left", "#right")):
+            frame = _pair_stereo(name, pending[name], frame)
+            if frame is None:
+                if progress:
+                    progress(done, total)
+                continue
+        frames[name] += 1
+        try:
+            res = detectors[name](frame)
+        except (ValueError, np.linalg.LinAlgError) as exc:  # a numerical dead end, not a crash
+            res = DetectionFailure(name, frame.t_ns, "error", f"{type(exc).__name__}: {exc}")
+        results[name].append(res)
+        if progress:
+            progress(done, total)
+    ok = {s: [r for r in rs if isinstance(r, BoardDetection)] for s, rs in results.items()}
+    kinds = {s.name: s.kind for s in rig.sensors}
+    if rig.windows_ns:
+        placements = placements_from_windows(ok, rig.windows_ns, rig.stability, kinds)
+        periods = {s: [] for s in ok}
+    else:
+        periods = {s: stable_periods(s, d, rig.stability, radar=kinds[s].is_radar) for s, d in ok.items()}
+        placements = match_placements(periods, min_sensors=rig.min_sensors)
+    specs = [SensorSpec(s.name, s.kind, s.frame_id, s.max_elevation_rad) for s in rig.sensors]
+    if not placements:
+        seen = ", ".join(f"{s}: {len(d)} detections in {frames[s]} frames" for s, d in ok.items())
+        raise InputError(f"{rig.source}: no board placement found in the recording ({seen})")
+    dataset = dataset_from_placements(placements, specs, rig.board, rig.reference, rig.source)
+    stats = {}
+    for s in rig.sensors:
+        fails = Counter(r.reason for r in results[s.name] if isinstance(r, DetectionFailure))
+        stats[s.name] = SensorStats(
+            frames=frames[s.name],
+            detections=len(ok[s.name]),
+            failures=dict(fails),
+            stable_periods=len(periods.get(s.name, [])),
+            placements=sum(1 for p in placements if s.name in p.periods),
+        )
+    return DetectionRun(
+        results={k: tuple(v) for k, v in results.items()},
+        placements=tuple(placements),
+        dataset=dataset,
+        stats=stats,
+    )

@@ -20,6 +20,11 @@ EPILOG_CALIBRATE = """examples:
   rigcal calibrate --lidar lidar.csv --camera camera.csv --radar radar.csv --mode fcpe --out results/
 """
 
+EPILOG_DETECT = """examples:
+  rigcal detect recording.bag --rig rig.yaml --out detections/
+  rigcal detect rosbag2_dir/ --rig rig.yaml --out detections/ && rigcal calibrate detections/rig.yaml --out results/
+"""
+
 EPILOG_DEMO = """example:
   rigcal demo --out demo_out/
 """
@@ -43,7 +48,11 @@ def _parser() -> argparse.ArgumentParser:
         epilog=EPILOG_CALIBRATE,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    c.add_argument("manifest", nargs="?", help="rig.yaml manifest (or a folder holding one)")
+    c.add_argument(
+        "manifest", nargs="?",
+        help="rig.yaml manifest (or a folder holding one); with --rig, a recording to detect first",
+    )
+    c.add_argument("--rig", metavar="RIG_YAML", help="detection rig: treat MANIFEST as a recording, detect, then calibrate")
     c.add_argument("--lidar", action="append", default=[], metavar="FILE", help="lidar detections (repeatable)")
     c.add_argument("--camera", action="append", default=[], metavar="FILE", help="camera detections (repeatable)")
     c.add_argument("--radar", action="append", default=[], metavar="FILE", help="2D radar detections (repeatable)")
@@ -62,6 +71,20 @@ def _parser() -> argparse.ArgumentParser:
     c.add_argument("--initial", metavar="FILE", help="initial guesses: a previous calibration.yaml")
     c.add_argument("--cv-folds", type=int, default=5, metavar="N", help="leave-boards-out folds (0 = off)")
     c.add_argument("--no-plot", action="store_true", help="do not write calibration.png")
+
+    t = sub.add_parser(
+        "detect",
+        help="detect the board in a recording (bag or folder) and write a dataset",
+        description="Runs each sensor's board detector over a recording (ROS1 bag, ROS2 bag "
+        "folder with sqlite3 or mcap storage, or a folder with one subfolder per sensor), finds "
+        "the board placements automatically (stable periods matched across sensors) and writes "
+        "rig.yaml + one CSV per sensor for `rigcal calibrate`.",
+        epilog=EPILOG_DETECT,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    t.add_argument("recording", help="ROS1 .bag, ROS2 bag folder, or a folder of files")
+    t.add_argument("--rig", required=True, metavar="RIG_YAML", help="sensors, topics and detector settings")
+    t.add_argument("--out", required=True, metavar="DIR", help="output folder for rig.yaml + CSVs")
 
     d = sub.add_parser(
         "demo",
@@ -155,7 +178,11 @@ def _cmd_calibrate(args, console) -> int:
     files = args.lidar or args.camera or args.radar or args.radar3d
     if args.manifest and files:
         raise InputError("give either a manifest or --lidar/--camera/--radar files, not both")
-    if args.manifest:
+    if args.rig:
+        if not args.manifest or files:
+            raise InputError("--rig needs a recording as the positional argument (and no --lidar/--camera/--radar)")
+        dataset = _detect(args.manifest, args.rig, console).dataset
+    elif args.manifest:
         dataset = load_manifest(args.manifest)
     elif files:
         dataset = dataset_from_files(
@@ -183,6 +210,49 @@ def _cmd_calibrate(args, console) -> int:
         sys.stdout.write(result_to_json_text(result) + "\n")
     _summary(result, console)
     console.print(f"results written to {args.out}/")
+    return 0
+
+
+def _detect(recording_path: str, rig_path: str, console):
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn
+    from rich.table import Table
+
+    from rigcal.detect.pipeline import run_detection
+    from rigcal.io.folder import open_any
+    from rigcal.io.rig_config import load_rig_config
+
+    rig = load_rig_config(rig_path)
+    with open_any(recording_path) as rec, Progress(
+        "[progress.description]{task.description}",
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeRemainingColumn(),
+        console=console,
+        transient=not console.is_terminal,
+    ) as bar:
+        task = bar.add_task("detecting", total=None)
+
+        def progress(done: int, total: int) -> None:
+            bar.update(task, completed=done, total=total)
+
+        run = run_detection(rec, rig, progress=progress)
+    table = Table(title=f"detection over {recording_path}")
+    for col in ("sensor", "frames", "detections", "rejections (reason: count)", "placements"):
+        table.add_column(col)
+    for name, st in run.stats.items():
+        fails = ", ".join(f"{k}: {v}" for k, v in sorted(st.failures.items(), key=lambda kv: -kv[1])) or "-"
+        table.add_row(name, str(st.frames), str(st.detections), fails, f"{st.placements}/{len(run.placements)}")
+    console.print(table)
+    console.print(f"{len(run.placements)} board placements found")
+    return run
+
+
+def _cmd_detect(args, console) -> int:
+    from rigcal.io.manifest import write_dataset
+
+    run = _detect(args.recording, args.rig, console)
+    path = write_dataset(run.dataset, args.out)
+    console.print(f"dataset written to {path}")
     return 0
 
 
@@ -249,6 +319,8 @@ def run(argv: Sequence[str] | None = None) -> int:
     try:
         if args.command == "calibrate":
             return _cmd_calibrate(args, console)
+        if args.command == "detect":
+            return _cmd_detect(args, console)
         if args.command == "demo":
             return _cmd_demo(args, console)
     except RigcalError as exc:

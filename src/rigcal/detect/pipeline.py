@@ -133,9 +133,9 @@ class DetectionRun:
 
 
 def _topics(setup: SensorSetup) -> dict[str, tuple[str, str]]:
-    kind = {"cloud": "lidar", "stereo_cloud": "camera", "mono": "image", "stereo_pair": "image", "radar": setup.kind.value}[setup.input]
+    kind = setup.kind.value  # readers convert by kind: clouds, images (camera), radar lists
     if setup.input == "stereo_pair":
-        return {f"{setup.name}#left": (setup.topic, "image"), f"{setup.name}#right": (setup.right_topic, "image")}
+        return {f"{setup.name}#left": (setup.topic, kind), f"{setup.name}#right": (setup.right_topic, kind)}
     return {setup.name: (setup.topic, kind)}
 
 

@@ -81,13 +81,19 @@ def matrix_from_rpy(rpy: np.ndarray) -> np.ndarray:
 
 
 def rpy_from_matrix(R: np.ndarray) -> np.ndarray:
-    """(roll, pitch, yaw) [rad] (..., 3) with R = Rz(yaw) Ry(pitch) Rx(roll); pitch in [-pi/2, pi/2]."""
+    """(roll, pitch, yaw) [rad] (..., 3) with R = Rz(yaw) Ry(pitch) Rx(roll).
+
+    Roll and yaw in (-pi, pi], pitch in [-pi/2, pi/2]. Roll comes from the last row; pitch and
+    yaw from ``R @ Rx(-roll)`` with atan2 only, so :func:`matrix_from_rpy` of the result
+    reproduces ``R`` to rounding even next to gimbal lock (|pitch| = pi/2, where roll is 0).
+    """
     R = np.asarray(R, dtype=float)
-    pitch = np.arcsin(np.clip(-R[..., 2, 0], -1.0, 1.0))
-    cp = np.sqrt(R[..., 0, 0] ** 2 + R[..., 1, 0] ** 2)
-    gimbal = cp < 1e-9
-    roll = np.where(gimbal, 0.0, np.arctan2(R[..., 2, 1], R[..., 2, 2]))
-    yaw = np.where(
-        gimbal, np.arctan2(-R[..., 0, 1], R[..., 1, 1]), np.arctan2(R[..., 1, 0], R[..., 0, 0])
-    )
-    return np.stack([roll, pitch, yaw], axis=-1)
+    r21, r22 = R[..., 2, 1], R[..., 2, 2]
+    roll = np.where(np.hypot(r21, r22) < 1e-12, 0.0, np.arctan2(r21, r22))
+    cr, sr = np.cos(roll), np.sin(roll)
+    m01 = cr * R[..., 0, 1] - sr * R[..., 0, 2]
+    m11 = cr * R[..., 1, 1] - sr * R[..., 1, 2]
+    m22 = sr * r21 + cr * r22
+    pitch = np.arctan2(-R[..., 2, 0], m22)
+    yaw = np.arctan2(-m01, m11)
+    return np.stack([roll, pitch, yaw], axis=-1) + 0.0  # + 0.0: no negative zeros

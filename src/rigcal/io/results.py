@@ -115,36 +115,17 @@ def _node_names(names: list[str]) -> dict[str, str]:
 
 
 def ros1_launch_text(result: CalibrationResult) -> str:
-    """A ROS 1 launch file publishing every non-reference sensor's pose in the reference frame."""
+    """A ROS 1 launch file publishing every non-reference sensor's pose in the reference frame
+    (``T_reference_sensor``), at full float precision (see :mod:`rigcal.io.tf_export`)."""
+    from rigcal.io.tf_export import ros1_launch_text as _launch
+
     parent = _ros_frame(_reference_frame(result), result.reference)
-    others = [n for n in result.sensors if n != result.reference]
-    nodes = _node_names(others)
-    version = getattr(rigcal, "__version__", "unknown")
-    comment = (
-        f"written by rigcal {version}; reference sensor: {result.reference}. Each node "
-        "publishes T_reference_sensor (the sensor frame's pose in the reference frame) as "
-        "args = x y z [m] yaw pitch roll [rad] parent child period [ms], "
-        "with R = Rz(yaw) Ry(pitch) Rx(roll)."
-    )
-    lines = [
-        '<?xml version="1.0"?>',
-        "<launch>",
-        f"  <!-- {comment.replace('--', '- -')} -->",
-    ]
-    for name in others:
-        est = result.sensors[name]
-        child = _ros_frame(est.frame_id, name)
-        T = np.asarray(est.T_reference_sensor, dtype=float)
-        roll, pitch, yaw = rpy_from_matrix(T[:3, :3])
-        x, y, z = T[:3, 3]
-        numbers = " ".join("%.9f" % float(v) for v in (x, y, z, yaw, pitch, roll))
-        args = f"{numbers} {parent} {child} {TF_PERIOD_MS}"
-        lines.append(
-            f'  <node pkg="tf" type="static_transform_publisher" name={quoteattr(nodes[name])} '
-            f"args={quoteattr(args)}/>"
-        )
-    lines.append("</launch>")
-    return "\n".join(lines) + "\n"
+    transforms = {
+        _ros_frame(est.frame_id, name): np.asarray(est.T_reference_sensor, dtype=float)
+        for name, est in result.sensors.items()
+        if name != result.reference
+    }
+    return _launch(transforms, parent)
 
 
 def write_results(result: CalibrationResult, out_dir: str | os.PathLike[str]) -> list[Path]:

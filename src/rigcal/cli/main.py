@@ -256,49 +256,37 @@ def _cmd_detect(args, console) -> int:
     return 0
 
 
-def _cmd_demo(args, console) -> int:
+def _print_demo(report, console) -> None:
     from rich.table import Table
 
-    from rigcal.io.manifest import write_dataset
-    from rigcal.io.results import write_results
-    from rigcal.problem.calibrate import CalibrationOptions, calibrate
-    from rigcal.problem.compare import errors_against_truth
-    from rigcal.report.plot import plot_calibration
-    from rigcal.sim import make_rig_placements, prius_like_rig, simulate
-
-    rng = np.random.default_rng(args.seed)
-    sensors = prius_like_rig()
-    placements = make_rig_placements(rng, sensors, args.boards)
-    sim = simulate(sensors, placements, rng=rng, reference=sensors[0].name)
-    out = Path(args.out)
-    write_dataset(sim.dataset, out / "dataset")
-    console.print(
-        f"simulated {len(sensors)} sensors ({', '.join(s.name for s in sensors)}), "
-        f"{args.boards} board placements, seed {args.seed}; detections in {out / 'dataset'}/"
-    )
+    console.print(report.description)
     table = Table(title="errors against the simulated truth (T_reference_sensor)")
     for col in ("mode", "sensor", "translation [mm]", "rotation [deg]", "std xyz [mm]", "RMSE pairs [mm]"):
         table.add_column(col)
-    for mode in ("mcpe", "fcpe", "pse"):
-        result = calibrate(sim.dataset, CalibrationOptions(mode=mode, cross_validation_folds=5))
-        write_results(result, out / mode)
-        plot_calibration(sim.dataset, result, out / mode / "calibration.png")
-        errs = errors_against_truth(result, sim.truth)
-        rm = ", ".join(f"{k} {v * 1000:.1f}" for k, v in result.rmse_m.items())
-        for i, (name, e) in enumerate(errs.items()):
-            s = result.sensors[name].std
+    for o in report.outcomes:
+        rm = ", ".join(f"{k} {v * 1000:.1f}" for k, v in o.result.rmse_m.items())
+        for i, (name, e) in enumerate(o.errors.items()):
+            s = o.result.sensors[name].std
             table.add_row(
-                mode.upper() if i == 0 else "",
+                o.mode.upper() if i == 0 else "",
                 name,
                 f"{e.translation_m * 1000:.1f}",
                 f"{e.rotation_deg:.3f}",
                 "/".join(f"{s[k] * 1000:.1f}" for k in ("x_m", "y_m", "z_m")),
                 rm if i == 0 else "",
             )
-        for w in result.warnings:
-            console.print(f"[yellow]{mode.upper()} warning:[/yellow] {w}")
+        for w in o.result.warnings:
+            console.print(f"[yellow]{o.mode.upper()} warning:[/yellow] {w}")
     console.print(table)
-    console.print(f"outputs written to {out}/ (dataset/, mcpe/, fcpe/, pse/)")
+    for n in report.notes:
+        console.print(n)
+    console.print(f"outputs written to {report.out_dir}/")
+
+
+def _cmd_demo(args, console) -> int:
+    from rigcal.demo import detections_demo
+
+    _print_demo(detections_demo(args.out, seed=args.seed, boards=args.boards), console)
     return 0
 
 

@@ -1,0 +1,427 @@
+"""Circle-board detector for stereo point clouds (camera optical frame: z forward, x right,
+y down), organised (from :func:`rigcal.sensors.stereo.point_cloud_from_pair`) or not.
+
+Steps:
+
+1. keep finite points within ``[min_range_m, max_range_m]`` and the optional ROI box;
+   segmentation runs on at most ``max_segment_points`` of them (a regular image stride for an
+   organised cloud, a seeded random subset otherwise);
+2. remove the ground (near-horizontal plane below the camera, ``up_axis`` = -y), cluster, rank
+   the clusters whose RANSAC plane has the board's size (or could be a partial view of it), as
+   the lidar detector does; the plane is then refined by least squares on all the plate's points;
+3. hole boundaries. Stereo depth is noisy along the viewing ray but the bearing is precise, so
+   everything is moved along its ray onto the board plane and fitted in-plane:
+
+   * organised cloud: the plate is the image region whose points lie within ``jump_m`` of the
+     plane; holes are the regions it encloses (points behind the plate or missing: the
+     left-right check of SGBM leaves half-occluded pixels empty) whose area fits a hole. Edge
+     samples sit half-way between a plate pixel and its 4-neighbour in a hole; their pixel rays
+     (intrinsics recovered from the cloud itself) meet the plane;
+   * unorganised cloud: the plate's points moved onto the plane, rasterised into an occupancy
+     grid (cell ~1.5 x the point spacing unless ``grid_cell_m``); the holes are the empty
+     regions the plate encloses and edge samples lie between occupied and empty cells;
+4. the four holes, the square check and the order (TL, TR, BL, BR as seen from the camera) as
+   for lidar (:func:`rigcal.detect.pointcloud.find_hole_square`).
+
+Failure reasons: ``no_points_in_roi``, ``no_board_plane``, ``too_few_edge_points``,
+``circles_not_found``, ``not_square``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from rigcal.dataset import BoardGeometry
+from rigcal.detect.pointcloud import (
+    BoardSegment,
+    HoleParams,
+    StepFailed,
+    board_candidates,
+    board_frame,
+    box_mask,
+    check_axis,
+    check_box,
+    check_positive,
+    check_seed,
+    find_hole_square,
+    rays_to_plane,
+    remove_ground,
+)
+from rigcal.detect.result import BoardDetection, DetectionFailure, DetectionResult
+from rigcal.errors import ConfigError, GeometryError
+from rigcal.geometry.fitting import (
+    fit_plane_lstsq,
+    from_plane_2d,
+    intersect_rays_plane,
+    plane_basis,
+    to_plane_2d,
+)
+from rigcal.recording import PointCloudFrame
+
+__all__ = ["StereoDetectorConfig", "detect_board_stereo"]
+
+
+@dataclass(frozen=True)
+class StereoDetectorConfig:
+    """Settings of :func:`detect_board_stereo` (defaults: 1-2 MP stereo, board at 2-8 m).
+
+    Fields as in :class:`rigcal.detect.lidar.LidarDetectorConfig`, plus: ``max_segment_points``
+    (points used for segmentation), ``jump_m`` (distance from the plate's plane beyond which a
+    point is not plate: larger than for lidar because stereo depth is noisier),
+    ``min_hole_area_fraction`` / ``max_hole_area_fraction`` (an enclosed region is a hole if its
+    area is within these fractions of a hole's expected area) and ``grid_cell_m`` (occupancy
+    cell for unorganised clouds; None: from the point density).
+    """
+
+    roi_min_xyz: tuple[float, float, float] | None = None
+    roi_max_xyz: tuple[float, float, float] | None = None
+    min_range_m: float = 0.5
+    max_range_m: float = 12.0
+    up_axis: tuple[float, float, float] = (0.0, -1.0, 0.0)
+    remove_ground: bool = True
+    ground_threshold_m: float = 0.15
+    ground_max_angle_deg: float = 30.0
+    ground_iterations: int = 100
+    max_segment_points: int = 60000
+    cluster_cell_m: float = 0.2
+    min_board_points: int = 200
+    check_board_size: bool = True
+    allow_partial_board: bool = True
+    size_tolerance_m: float = 0.3
+    max_board_candidates: int = 3
+    plane_threshold_m: float = 0.1
+    plane_iterations: int = 250
+    jump_m: float = 0.25
+    min_hole_area_fraction: float = 0.2
+    max_hole_area_fraction: float = 3.0
+    grid_cell_m: float | None = None
+    min_radius_m: float = 0.06
+    max_radius_m: float = 0.10
+    circle_threshold_m: float = 0.02
+    min_edge_points: int = 12
+    refine_square: bool = True
+    square_tolerance_m: float = 0.03
+    vote_cell_m: float = 0.01
+    vote_angle_step_deg: float = 6.0
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        where = "stereo detector"
+        check_box(self.roi_min_xyz, self.roi_max_xyz, where)
+        check_axis(self.up_axis, "up_axis", where)
+        check_seed(self.seed, where)
+        check_positive(
+            self,
+            ("min_range_m", "max_range_m", "ground_threshold_m", "ground_max_angle_deg",
+             "ground_iterations", "max_segment_points", "cluster_cell_m", "min_board_points",
+             "size_tolerance_m", "max_board_candidates", "plane_threshold_m", "plane_iterations",
+             "jump_m", "min_hole_area_fraction", "max_hole_area_fraction", "min_radius_m",
+             "max_radius_m", "circle_threshold_m", "min_edge_points", "square_tolerance_m",
+             "vote_cell_m", "vote_angle_step_deg"),
+            where,
+        )
+        if self.grid_cell_m is not None:
+            check_positive(self, ("grid_cell_m",), where)
+        if self.max_range_m <= self.min_range_m:
+            raise ConfigError(
+                f"{where}: max_range_m ({self.max_range_m}) must exceed min_range_m "
+                f"({self.min_range_m})"
+            )
+        if self.max_radius_m < self.min_radius_m:
+            raise ConfigError(
+                f"{where}: max_radius_m ({self.max_radius_m}) must be >= min_radius_m "
+                f"({self.min_radius_m})"
+            )
+        if self.max_hole_area_fraction <= self.min_hole_area_fraction:
+            raise ConfigError(f"{where}: max_hole_area_fraction must exceed min_hole_area_fraction")
+
+
+# ----------------------------------------------------------------------------- helpers
+
+
+def _intrinsics_from_cloud(
+    points_hw: np.ndarray, valid: np.ndarray, rng: np.random.Generator
+) -> tuple[float, float, float, float] | None:
+    """(fx, fy, cx, cy) of a pinhole organised cloud (``u = fx X/Z + cx``), or None if the
+    cloud does not follow a pinhole model to 0.05 px."""
+    v_idx, u_idx = np.nonzero(valid & (points_hw[..., 2] > 0))
+    if v_idx.size < 100:
+        return None
+    if v_idx.size > 20000:
+        pick = rng.integers(0, v_idx.size, 20000)
+        v_idx, u_idx = v_idx[pick], u_idx[pick]
+    p = points_hw[v_idx, u_idx]
+    out = []
+    for coord, k in ((u_idx, 0), (v_idx, 1)):
+        A = np.column_stack([p[:, k] / p[:, 2], np.ones(p.shape[0])])
+        sol, *_ = np.linalg.lstsq(A, coord.astype(float), rcond=None)
+        res = A @ sol - coord
+        if np.sqrt(np.mean(res * res)) > 0.05 or sol[0] <= 0:
+            return None
+        out.append(sol)
+    return float(out[0][0]), float(out[1][0]), float(out[0][1]), float(out[1][1])
+
+
+def _enclosed_regions(mask: np.ndarray) -> np.ndarray:
+    """Labels (H, W) of the 4-connected regions of ``~mask`` enclosed by ``mask`` (else 0)."""
+    import cv2
+
+    ys, xs = np.nonzero(mask)
+    y0, y1, x0, x1 = ys.min(), ys.max() + 1, xs.min(), xs.max() + 1
+    sub = np.ones((y1 - y0 + 2, x1 - x0 + 2), np.uint8)
+    sub[1:-1, 1:-1] = ~mask[y0:y1, x0:x1]
+    _, lab = cv2.connectedComponents(sub, connectivity=4)
+    outside = lab[0, 0]
+    lab[lab == outside] = 0
+    out = np.zeros(mask.shape, np.int32)
+    out[y0:y1, x0:x1] = lab[1:-1, 1:-1]
+    return out
+
+
+def _boundary_samples(plate: np.ndarray, hole: np.ndarray) -> np.ndarray:
+    """(K, 2) (row, col) points half-way between a plate cell and a 4-neighbouring hole cell."""
+    out = []
+    for dr, dc in ((0, 1), (0, -1), (1, 0), (-1, 0)):
+        h, w = plate.shape
+        a = plate[max(0, -dr) : h - max(0, dr), max(0, -dc) : w - max(0, dc)]
+        b = hole[max(0, dr) : h - max(0, -dr), max(0, dc) : w - max(0, -dc)]
+        r, c = np.nonzero(a & b)
+        r = r + max(0, -dr)
+        c = c + max(0, -dc)
+        out.append(np.column_stack([r + dr / 2, c + dc / 2]))
+    return np.concatenate(out).astype(float)
+
+
+def _keep_holes(
+    regions: np.ndarray, expected_area: float, cfg: StereoDetectorConfig
+) -> tuple[np.ndarray, list[int]]:
+    """Mask of the enclosed regions whose area fits a hole, and their areas."""
+    areas = np.bincount(regions.reshape(-1))
+    lo, hi = cfg.min_hole_area_fraction * expected_area, cfg.max_hole_area_fraction * expected_area
+    keep = [k for k in range(1, areas.size) if lo <= areas[k] <= hi]
+    return np.isin(regions, keep), [int(areas[k]) for k in keep]
+
+
+def _refine_plane(
+    points: np.ndarray, normal: np.ndarray, d: float, thr: float
+) -> tuple[np.ndarray, float, float]:
+    """Least-squares plane of the points within ``thr`` of the given one (kept if that fails)."""
+    near = np.abs(points @ normal + d) < thr
+    if near.sum() < 3:
+        return normal, d, float("nan")
+    try:
+        fit = fit_plane_lstsq(points[near])
+    except GeometryError:
+        return normal, d, float("nan")
+    return fit.normal, fit.d, fit.rms
+
+
+# ----------------------------------------------------------------------------- detector
+
+
+def detect_board_stereo(
+    frame: PointCloudFrame,
+    board: BoardGeometry = BoardGeometry(),
+    config: StereoDetectorConfig = StereoDetectorConfig(),
+) -> DetectionResult:
+    """The four hole centres (4, 3) [m] in the camera optical frame, TL, TR, BL, BR as seen
+    from the camera, or a :class:`DetectionFailure` with its reason (module docstring).
+
+    ``quality``: ``plane_rms_m``, ``circle_rms_m``, ``radius_m``, ``square_error_m``,
+    ``diag_side_ratio``, ``edge_points``, ``edge_points_used``, ``board_points``,
+    ``organised`` (1.0 / 0.0), ``partial_board``, ``range_m``.
+    """
+    cfg = config
+
+    def fail(reason: str, detail: str) -> DetectionFailure:
+        return DetectionFailure(frame.sensor, frame.t_ns, reason, detail)
+
+    pts = frame.points_xyz
+    n_all = pts.shape[0]
+    lo, hi = check_box(cfg.roi_min_xyz, cfg.roi_max_xyz, "stereo detector")
+    up = check_axis(cfg.up_axis, "up_axis", "stereo detector")
+    finite = np.isfinite(pts).all(axis=1)
+    r = np.linalg.norm(np.where(finite[:, None], pts, 0.0), axis=1)
+    usable = finite & (r >= cfg.min_range_m) & (r <= cfg.max_range_m)
+    if lo is not None:
+        usable &= box_mask(pts, lo, hi)
+    n_use = int(usable.sum())
+    if n_use < cfg.min_board_points:
+        return fail(
+            "no_points_in_roi",
+            f"{n_use} of {n_all} points are finite, within {cfg.min_range_m}-{cfg.max_range_m} m"
+            + (" and in the ROI" if lo is not None else "") + f"; need {cfg.min_board_points}",
+        )
+    rng = np.random.default_rng(cfg.seed)
+    organised = frame.organized_shape is not None
+    if organised:
+        h, w = frame.organized_shape
+        stride = max(1, int(math.ceil(math.sqrt(n_use / cfg.max_segment_points))))
+        grid = np.zeros((h, w), bool)
+        grid[::stride, ::stride] = True
+        idx = np.nonzero(usable & grid.reshape(-1))[0]
+    else:
+        idx = np.nonzero(usable)[0]
+        if idx.size > cfg.max_segment_points:
+            idx = np.sort(rng.choice(idx, cfg.max_segment_points, replace=False))
+    q = pts[idx]
+    if cfg.remove_ground:
+        above, _ = remove_ground(
+            q, up, rng, threshold_m=cfg.ground_threshold_m, max_angle_deg=cfg.ground_max_angle_deg,
+            iterations=cfg.ground_iterations,
+        )
+        idx, q = idx[above], q[above]
+    min_seg = cfg.min_board_points
+    if organised:  # the board's points were thinned by stride^2
+        min_seg = max(10, int(cfg.min_board_points / (stride * stride)))
+    try:
+        cands = board_candidates(
+            q, board, rng, cell_m=cfg.cluster_cell_m, min_points=min_seg,
+            plane_threshold_m=cfg.plane_threshold_m, plane_iterations=cfg.plane_iterations,
+            size_tolerance_m=cfg.size_tolerance_m, check_size=cfg.check_board_size,
+            allow_partial=cfg.allow_partial_board,
+        )
+    except StepFailed as exc:
+        return fail(exc.reason, exc.detail)
+    hp = HoleParams.from_config(board, cfg)
+    failures: list[StepFailed] = []
+    for seg in cands[: cfg.max_board_candidates]:
+        try:
+            return _detect_on_candidate(frame, pts, usable, idx[seg.indices], seg, up, hp, cfg, rng)
+        except StepFailed as exc:
+            failures.append(exc)
+    return fail(failures[0].reason, failures[0].detail)
+
+
+def _detect_on_candidate(
+    frame, pts, usable, cluster, seg: BoardSegment, up, hp, cfg, rng
+) -> BoardDetection:
+    normal, d = seg.plane.normal, seg.plane.d
+    seed_idx = cluster[seg.plane.inliers]
+    organised = frame.organized_shape is not None
+    intr = None
+    if organised:
+        h, w = frame.organized_shape
+        P = pts.reshape(h, w, 3)
+        intr = _intrinsics_from_cloud(P, usable.reshape(h, w), rng)
+    if intr is not None:
+        edges3d, plate_idx, info = _organised_edges(
+            P, usable.reshape(h, w), seed_idx, normal, d, intr, hp, cfg
+        )
+        normal, d = info.pop("plane")
+    else:
+        edges3d, plate_idx, info = _unorganised_edges(pts, usable, seed_idx, normal, d, hp, cfg)
+        normal, d = info.pop("plane")
+    normal, origin, basis = board_frame(normal, d, up, rays_to_plane(pts[plate_idx], normal, d))
+    holes = find_hole_square(to_plane_2d(edges3d, origin, basis), hp)
+    centres = from_plane_2d(holes.centres_uv, origin, basis)
+    quality = {
+        "plane_rms_m": info["plane_rms_m"],
+        "circle_rms_m": holes.square.rms,
+        "radius_m": holes.square.radius,
+        "square_error_m": holes.square_error_m,
+        "diag_side_ratio": holes.diag_side_ratio,
+        "edge_points": float(edges3d.shape[0]),
+        "edge_points_used": float(holes.edges_used),
+        "board_points": float(plate_idx.size),
+        "organised": float(intr is not None),
+        "partial_board": float(seg.partial),
+        "range_m": float(np.linalg.norm(centres.mean(axis=0))),
+    }
+    return BoardDetection(frame.sensor, frame.t_ns, centres, quality)
+
+
+def _organised_edges(P, valid, seed_idx, normal, d, intr, hp: HoleParams, cfg):
+    import cv2
+
+    h, w = valid.shape
+    fx, fy, cx, cy = intr
+    with np.errstate(invalid="ignore"):
+        s = P @ normal + d
+    plate_px = valid & (np.abs(s) < cfg.jump_m)
+    n_lab, lab = cv2.connectedComponents(plate_px.astype(np.uint8), connectivity=8)
+    seed_lab = lab.reshape(-1)[seed_idx]
+    seed_lab = seed_lab[seed_lab > 0]
+    if seed_lab.size == 0:
+        raise StepFailed("no_board_plane", "the board plane's points form no image region")
+    board_lab = int(np.argmax(np.bincount(seed_lab)))
+    plate = lab == board_lab
+    flat = plate.reshape(-1)
+    plate_pts = P.reshape(-1, 3)[flat]
+    normal, d, rms = _refine_plane(plate_pts, normal, d, cfg.plane_threshold_m)
+    if d < 0:
+        normal, d = -normal, -d
+    plate_idx = np.nonzero(flat)[0]
+    # expected hole area [px]: at the plate's median depth, foreshortened
+    centre = np.median(plate_pts, axis=0)
+    z = float(centre[2])
+    cosang = abs(float(normal @ centre)) / float(np.linalg.norm(centre))
+    expected = math.pi * (hp.radius_m * fx / z) * (hp.radius_m * fy / z) * cosang
+    regions = _enclosed_regions(plate)
+    hole, areas = _keep_holes(regions, expected, cfg)
+    rc = _boundary_samples(plate, hole)
+    if rc.shape[0] == 0:
+        raise StepFailed(
+            "too_few_edge_points",
+            f"the plate encloses no hole-sized region (expected ~{expected:.0f} px; "
+            f"{int(regions.max())} enclosed regions)",
+        )
+    dirs = np.column_stack([(rc[:, 1] - cx) / fx, (rc[:, 0] - cy) / fy, np.ones(rc.shape[0])])
+    edges = intersect_rays_plane(dirs, normal, d)
+    info = {"plane": (normal, d), "plane_rms_m": rms, "hole_areas_px": areas}
+    return edges[np.isfinite(edges).all(axis=1)], plate_idx, info
+
+
+def _unorganised_edges(pts, usable, seed_idx, normal, d, hp: HoleParams, cfg):
+    import cv2
+
+    use = np.nonzero(usable)[0]
+    s = pts[use] @ normal + d
+    near = use[np.abs(s) < cfg.jump_m]
+    normal, d, rms = _refine_plane(pts[near], normal, d, cfg.plane_threshold_m)
+    if d < 0:
+        normal, d = -normal, -d
+    basis_tmp = plane_basis(normal)
+    origin = -d * normal
+    seed_uv = to_plane_2d(rays_to_plane(pts[seed_idx], normal, d), origin, basis_tmp)
+    seed_uv = seed_uv[np.isfinite(seed_uv).all(axis=1)]
+    lo = seed_uv.min(axis=0) - 0.1
+    hi = seed_uv.max(axis=0) + 0.1
+    uv = to_plane_2d(rays_to_plane(pts[near], normal, d), origin, basis_tmp)
+    inside = np.isfinite(uv).all(axis=1) & np.all((uv >= lo) & (uv <= hi), axis=1)
+    uv, plate_idx = uv[inside], near[inside]
+    if cfg.grid_cell_m is not None:
+        cell = float(cfg.grid_cell_m)
+    else:
+        area = float(np.prod(np.clip(hi - lo - 0.2, 0.05, None)))
+        cell = float(np.clip(1.5 * math.sqrt(area / max(uv.shape[0], 1)), 0.003, 0.03))
+    size = np.ceil((hi - lo) / cell).astype(int) + 1
+    if size[0] * size[1] > 4_000_000:
+        raise StepFailed(
+            "too_few_edge_points", f"occupancy grid of {size[0]}x{size[1]} cells is too large"
+        )
+    ij = np.floor((uv - lo) / cell).astype(int)
+    occ = np.zeros((size[0], size[1]), np.uint8)
+    occ[ij[:, 0], ij[:, 1]] = 1
+    occ = cv2.morphologyEx(occ, cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
+    n_lab, lab, stats, _ = cv2.connectedComponentsWithStats(occ, connectivity=8)
+    if n_lab < 2:
+        raise StepFailed("too_few_edge_points", "the plate's occupancy grid is empty")
+    plate = lab == 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+    expected = math.pi * (hp.radius_m / cell) ** 2
+    regions = _enclosed_regions(plate)
+    hole, areas = _keep_holes(regions, expected, cfg)
+    ij_e = _boundary_samples(plate, hole)
+    if ij_e.shape[0] == 0:
+        raise StepFailed(
+            "too_few_edge_points",
+            f"the plate's occupancy grid ({cell * 1000:.1f} mm cells) encloses no hole-sized "
+            "region",
+        )
+    uv_e = lo + (ij_e + 0.5) * cell
+    edges = from_plane_2d(uv_e, origin, basis_tmp)
+    info = {"plane": (normal, d), "plane_rms_m": rms, "hole_areas_cells": areas, "cell_m": cell}
+    return edges, plate_idx, info

@@ -28,7 +28,8 @@ class StabilityRule:
 
     tolerance_m: largest distance of a detection's anchor (centroid of the 4 centres, or the
     radar point) from the run's median; min_duration_s: shortest stable period;
-    max_gap_s: longest gap between consecutive detections inside one period; min_frames.
+    max_gap_s: longest gap between consecutive detections inside one period (at least 2.5
+    frame intervals of the sensor, so slow sensors still form periods); min_frames.
     """
 
     tolerance_m: float = 0.03
@@ -93,6 +94,11 @@ def stable_periods(
     """Split one sensor's detections (any order) into stable periods."""
     dets = sorted(detections, key=lambda d: d.t_ns)
     tol = rule.radar_tolerance_m if radar else rule.tolerance_m
+    # a slow sensor's frames are further apart: the gap allowed follows its frame interval
+    max_gap = rule.max_gap_s
+    if len(dets) > 2:
+        dt = np.diff([d.t_ns for d in dets]) / NS
+        max_gap = max(max_gap, 2.5 * float(np.median(dt)))
     out: list[StablePeriod] = []
     run: list[BoardDetection] = []
     run_anchors: list[np.ndarray] = []
@@ -108,7 +114,7 @@ def stable_periods(
         if run:
             gap = (d.t_ns - run[-1].t_ns) / NS
             ref = np.median(np.array(run_anchors[-10:]), axis=0)
-            if gap > rule.max_gap_s or np.linalg.norm(a - ref) > tol:
+            if gap > max_gap or np.linalg.norm(a - ref) > tol:
                 close_run()
                 run, run_anchors = [], []
         run.append(d)

@@ -98,7 +98,7 @@ class StereoDetectorConfig:
     min_hole_area_fraction: float = 0.2
     max_hole_area_fraction: float = 3.0
     grid_cell_m: float | None = None
-    min_radius_m: float = 0.06
+    min_radius_m: float = 0.045  # SGBM block matching fattens the plate: holes look smaller
     max_radius_m: float = 0.10
     circle_threshold_m: float = 0.02
     min_edge_points: int = 12

@@ -34,7 +34,8 @@ _ARC_SAMPLES = 9
 def _detections_in_reference(
     det: SensorDetections, T_ref_sensor: np.ndarray, boards: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Points (N, 3) of ``boards`` in the reference frame, and elevation arcs (M, A, 3) for 2D radars."""
+    """Points (N, 3) of ``boards`` in the reference frame and, for a 2D radar, their elevation
+    arcs (M, A, 3); other kinds get no arcs."""
     pts = np.asarray(det.points)[boards]
     if det.kind.is_point_cloud:
         return transform_points(T_ref_sensor, pts.reshape(-1, 3)), np.zeros((0, _ARC_SAMPLES, 3))
@@ -99,7 +100,9 @@ def plot_calibration(
             T = np.asarray(result.sensors[det.name].T_reference_sensor, dtype=float)
             outliers = set(int(b) for b in result.outliers.get(det.name, ()))
             detected = det.detected
-            idx_out = np.array(sorted(b for b in outliers if 0 <= b < det.num_boards and detected[b]), dtype=int)
+            idx_out = np.array(
+                sorted(b for b in outliers if 0 <= b < det.num_boards and detected[b]), dtype=int
+            )
             valid = det.valid.copy()
             valid[list(outliers & set(range(det.num_boards)))] = False
             idx_in = np.flatnonzero(valid)

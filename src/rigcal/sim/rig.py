@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, fields, replace
-from typing import Iterable, Mapping, Sequence
+from typing import Iterable, Sequence
 
 import numpy as np
 
@@ -154,9 +154,8 @@ class SimSensor:
             else SensorKind.parse(self.kind, f"sim sensor '{self.name}'")
         )
         object.__setattr__(self, "kind", kind)
-        object.__setattr__(
-            self, "T_rig_sensor", _check_rigid(self.T_rig_sensor, f"sim sensor '{self.name}'.T_rig_sensor")
-        )
+        T = _check_rigid(self.T_rig_sensor, f"sim sensor '{self.name}'.T_rig_sensor")
+        object.__setattr__(self, "T_rig_sensor", T)
         defaults = _KIND_DEFAULTS[kind]
         for f in fields(self):
             if getattr(self, f.name) is None and f.name != "min_elevation_deg":
@@ -211,7 +210,7 @@ class SimResult:
     """
 
     dataset: Dataset
-    truth: Mapping[str, np.ndarray]
+    truth: dict[str, np.ndarray]
     T_rig_board: np.ndarray
     sensors: tuple[SimSensor, ...] = field(default=())
 
@@ -296,7 +295,7 @@ def visible(
 def _camera_noise(
     sensor: SimSensor, pts: np.ndarray, normals: np.ndarray
 ) -> np.ndarray:
-    """Noise (..., 3) for points (..., 3): lateral sigma across, range-squared sigma along the ray."""
+    """Noise (..., 3) for points (..., 3): ``sigma_m`` across the ray, range-squared along it."""
     r = np.maximum(np.linalg.norm(pts, axis=-1, keepdims=True), 1e-12)
     u = pts / r
     helper = np.where(np.abs(u[..., :1]) < 0.9, [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
@@ -311,7 +310,8 @@ def _camera_noise(
 
 def _spherical(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     r = np.linalg.norm(pts, axis=-1)
-    return r, np.arctan2(pts[..., 1], pts[..., 0]), np.arctan2(pts[..., 2], np.hypot(pts[..., 0], pts[..., 1]))
+    az = np.arctan2(pts[..., 1], pts[..., 0])
+    return r, az, np.arctan2(pts[..., 2], np.hypot(pts[..., 0], pts[..., 1]))
 
 
 def _detect(
@@ -511,7 +511,9 @@ def make_rig_placements(
     tried = 0
     batch = max(8, 2 * K)
     while len(kept) < K and tried < max_candidates:
-        cand = make_board_placements(gen, batch, center, board=board, **placement)  # type: ignore[arg-type]
+        cand = make_board_placements(
+            gen, batch, center, board=board, **placement  # type: ignore[arg-type]
+        )
         vis = np.stack([visible(s, cand, board) for s in sensors])  # (S, B)
         coins = gen.random(batch)
         for j in range(batch):
@@ -543,7 +545,9 @@ def make_rig_placements(
 # --------------------------------------------------------------------------- presets
 
 
-def _pose(xyz: Sequence[float], rpy_deg: Sequence[float], R_post: np.ndarray | None = None) -> np.ndarray:
+def _pose(
+    xyz: Sequence[float], rpy_deg: Sequence[float], R_post: np.ndarray | None = None
+) -> np.ndarray:
     R = matrix_from_rpy(np.radians(np.asarray(rpy_deg, dtype=float)))
     if R_post is not None:
         R = R @ R_post
@@ -654,9 +658,10 @@ def random_rig(
     for kind in (SensorKind.LIDAR, SensorKind.CAMERA, SensorKind.RADAR, SensorKind.RADAR3D):
         for i in range(int(counts[kind])):
             if kind is SensorKind.RADAR:
-                xyz = np.array([gen.uniform(0.6, 1.2), gen.uniform(-0.8, 0.8), gen.uniform(0.4, 0.7)])
+                x_lim, z_lim = (0.6, 1.2), (0.4, 0.7)
             else:
-                xyz = np.array([gen.uniform(0.0, 1.2), gen.uniform(-0.8, 0.8), gen.uniform(0.3, 1.4)])
+                x_lim, z_lim = (0.0, 1.2), (0.3, 1.4)
+            xyz = np.array([gen.uniform(*x_lim), gen.uniform(-0.8, 0.8), gen.uniform(*z_lim)])
             plan.append((f"{kind.value}{i + 1}", kind, xyz))
     placeholders = tuple(SimSensor(n, k, from_rt(np.eye(3), p)) for n, k, p in plan)
     if not placeholders:

@@ -59,7 +59,7 @@ class SensorKind(str, Enum):
 DEFAULT_MAX_ELEVATION_DEG = 9.0
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # holds arrays: compare by identity
 class SensorDetections:
     """One sensor's detections of K board placements (see module docstring for layouts)."""
 
@@ -130,7 +130,7 @@ class BoardGeometry:
             )
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # holds arrays: compare by identity
 class Dataset:
     """All sensors' detections of the same K board placements."""
 

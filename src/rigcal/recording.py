@@ -21,7 +21,7 @@ def _frozen(a: np.ndarray, dtype=None) -> np.ndarray:
     return out
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # holds arrays: compare by identity
 class PointCloudFrame:
     """A point cloud: ``points_xyz`` (N, 3) [m] plus optional per-point ``fields`` (N,) such as
     ``intensity``, ``ring`` (lidar laser index) or ``rcs`` (radar cross-section, dBsm).
@@ -68,7 +68,7 @@ class PointCloudFrame:
         return int(self.points_xyz.shape[0])
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # holds arrays: compare by identity
 class ImageFrame:
     """An image (H, W) mono or (H, W, 3) BGR, uint8, as OpenCV uses it."""
 
@@ -92,7 +92,7 @@ class ImageFrame:
         return int(self.image.shape[1]), int(self.image.shape[0])
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # holds arrays: compare by identity
 class StereoFrame:
     """A rectified stereo pair (left, right), both uint8 of the same size."""
 
@@ -114,7 +114,7 @@ class StereoFrame:
         object.__setattr__(self, "t_ns", int(self.t_ns))
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # holds arrays: compare by identity
 class RadarFrame:
     """A radar detection list: ``points`` (N, 2) x, y for a 2D radar or (N, 3) for a 3D radar
     [m], ``rcs_dbsm`` (N,) radar cross-sections (NaN if unknown)."""

@@ -119,3 +119,31 @@ def test_alignment_does_not_mutate_inputs() -> None:
     kabsch(a, b, w), umeyama(a, b, w)
     for before, after in zip(copies, (a, b, w)):
         np.testing.assert_array_equal(before, after)
+
+
+def test_bad_weights_are_refused():
+    import numpy as np
+    import pytest
+
+    from rigcal.errors import GeometryError
+    from rigcal.geometry.align import kabsch
+
+    rng = np.random.default_rng(0)
+    a = rng.normal(size=(5, 3))
+    with pytest.raises(GeometryError, match="shape"):
+        kabsch(a, a, weights=np.ones(4))
+    with pytest.raises(GeometryError, match="not all zero"):
+        kabsch(a, a, weights=np.zeros(5))
+    with pytest.raises(GeometryError, match=">= 0"):
+        kabsch(a, a, weights=-np.ones(5))
+
+
+def test_value_types_compare_by_identity_without_crashing():
+    import numpy as np
+
+    from rigcal.geometry.frames import Transform
+
+    a = Transform(np.eye(4), "a", "b")
+    b = Transform(np.eye(4), "a", "b")
+    assert a == a and a != b  # identity, not an ambiguous array comparison
+    assert len({a, b}) == 2

@@ -57,8 +57,8 @@ def test_apply_maps_points() -> None:
     [
         (np.diag([1.0, 1.0, -1.0, 1.0]), "no proper rotation"),
         (np.diag([2.0, 1.0, 1.0, 1.0]), "no proper rotation"),
-        (np.eye(3), r"finite 4x4, got \(3, 3\)"),
-        (np.full((4, 4), np.nan), "finite 4x4"),
+        (np.eye(3), r"4x4 matrix, got shape \(3, 3\)"),
+        (np.full((4, 4), np.nan), "non-finite entries"),
         (np.vstack([np.eye(4)[:3], [1.0, 0.0, 0.0, 1.0]]), r"last row must be \[0, 0, 0, 1\]"),
     ],
 )

@@ -122,7 +122,7 @@ class SensorStats:
     placements: int = 0
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # holds arrays: compare by identity
 class DetectionRun:
     """Everything detection produced: per-sensor results, placements, the dataset, statistics."""
 

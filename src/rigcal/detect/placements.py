@@ -39,7 +39,7 @@ class StabilityRule:
     min_frames: int = 3
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # holds arrays: compare by identity
 class StablePeriod:
     sensor: str
     start_ns: int
@@ -54,7 +54,7 @@ class StablePeriod:
         return (self.end_ns - self.start_ns) / NS
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # holds arrays: compare by identity
 class Placement:
     """One board placement: a time window and each sensor's stable period in it (if any)."""
 

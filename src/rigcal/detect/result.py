@@ -9,7 +9,7 @@ from typing import Mapping, Union
 import numpy as np
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # holds arrays: compare by identity
 class BoardDetection:
     """The board found in one frame, in the sensor's frame.
 

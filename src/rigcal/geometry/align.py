@@ -23,7 +23,14 @@ def _check_pairs(points_from: np.ndarray, points_to: np.ndarray) -> tuple[np.nda
 
 
 def _weighted_svd(a, b, weights):
-    w = np.ones(a.shape[0]) if weights is None else np.asarray(weights, dtype=float)
+    if weights is None:
+        w = np.ones(a.shape[0])
+    else:
+        w = np.asarray(weights, dtype=float)
+        if w.shape != (a.shape[0],):
+            raise GeometryError(f"alignment weights must have shape ({a.shape[0]},), got {w.shape}")
+        if not np.all(np.isfinite(w)) or np.any(w < 0) or not w.sum() > 0:
+            raise GeometryError("alignment weights must be finite, >= 0 and not all zero")
     w = w / w.sum()
     ca = w @ a
     cb = w @ b

@@ -10,7 +10,7 @@ from rigcal.errors import GeometryError
 from rigcal.geometry.se3 import invert, transform_points
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # holds arrays: compare by identity
 class Transform:
     """``matrix`` maps a point in ``from_frame`` into ``to_frame`` (``T_to_from``).
 
@@ -23,9 +23,13 @@ class Transform:
 
     def __post_init__(self) -> None:
         m = np.array(self.matrix, dtype=float)
-        if m.shape != (4, 4) or not np.all(np.isfinite(m)):
+        if m.shape != (4, 4):
             raise GeometryError(
-                f"transform {self.to_frame}<-{self.from_frame} must be a finite 4x4, got {m.shape}"
+                f"transform {self.to_frame}<-{self.from_frame} must be a 4x4 matrix, got shape {m.shape}"
+            )
+        if not np.all(np.isfinite(m)):
+            raise GeometryError(
+                f"transform {self.to_frame}<-{self.from_frame} has non-finite entries (NaN or inf)"
             )
         R = m[:3, :3]
         if not np.allclose(R.T @ R, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:

@@ -38,27 +38,25 @@ def so3_log(R: np.ndarray) -> np.ndarray:
     R = np.asarray(R, dtype=float)
     batch = R.shape[:-2]
     Rf = R.reshape(-1, 3, 3)
-    out = np.empty((Rf.shape[0], 3))
     cos = np.clip((np.trace(Rf, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
     theta = np.arccos(cos)
     vee = np.stack(
         [Rf[:, 2, 1] - Rf[:, 1, 2], Rf[:, 0, 2] - Rf[:, 2, 0], Rf[:, 1, 0] - Rf[:, 0, 1]], axis=-1
     )
-    for i in range(Rf.shape[0]):
-        th = theta[i]
-        if th < 1e-4:
-            out[i] = 0.5 * (1.0 + th * th / 6.0) * vee[i]
-        elif np.pi - th < 1e-3:
-            # near pi: axis from the symmetric part, sign from the skew part
-            S = (Rf[i] + Rf[i].T) / 2.0 - cos[i] * np.eye(3)
-            k = int(np.argmax(np.diag(S)))
-            axis = S[:, k] / np.sqrt(max(S[k, k], _SMALL))
-            axis /= np.linalg.norm(axis)
-            if np.dot(axis, vee[i]) < 0:
-                axis = -axis
-            out[i] = axis * th
-        else:
-            out[i] = th / (2.0 * np.sin(th)) * vee[i]
+    small = theta < 1e-4
+    near_pi = np.pi - theta < 1e-3
+    sin = np.sin(np.where(small | near_pi, 1.0, theta))
+    scale = np.where(small, 0.5 * (1.0 + theta * theta / 6.0), theta / (2.0 * sin))
+    out = scale[:, None] * vee
+    for i in np.flatnonzero(near_pi):
+        # near pi the skew part vanishes: axis from the symmetric part, sign from the skew part
+        S = (Rf[i] + Rf[i].T) / 2.0 - cos[i] * np.eye(3)
+        k = int(np.argmax(np.diag(S)))
+        axis = S[:, k] / np.sqrt(max(S[k, k], _SMALL))
+        axis /= np.linalg.norm(axis)
+        if np.dot(axis, vee[i]) < 0:
+            axis = -axis
+        out[i] = axis * theta[i]
     return out.reshape(batch + (3,))
 
 

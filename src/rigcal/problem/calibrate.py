@@ -62,7 +62,7 @@ class CalibrationOptions:
     seed: int = 0
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # holds arrays: compare by identity
 class _Fit:
     poses: dict[str, np.ndarray]
     problem: Problem

@@ -27,7 +27,7 @@ from rigcal.problem.residuals import MODEL_POINT, MODEL_RADAR2D
 from rigcal.targets.circle_board import reflectors_from_centres
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # holds arrays: compare by identity
 class PairData:
     """Anchors of one sensor pair over its common valid boards."""
 

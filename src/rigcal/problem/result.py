@@ -13,7 +13,7 @@ from rigcal.geometry.so3 import rpy_from_matrix
 STD_KEYS = ("x_m", "y_m", "z_m", "roll_deg", "pitch_deg", "yaw_deg")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # holds arrays: compare by identity
 class SensorEstimate:
     """One sensor's pose in the reference frame with its uncertainty.
 
@@ -40,7 +40,7 @@ class SensorEstimate:
         return np.degrees(rpy_from_matrix(self.T_reference_sensor[:3, :3]))
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # holds arrays: compare by identity
 class CalibrationResult:
     """Everything a calibration run estimated and measured.
 

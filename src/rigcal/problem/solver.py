@@ -38,7 +38,7 @@ SPARSE_ABOVE = 600  # free parameters above which sparse linear algebra is used
 LOSSES = ("linear", "huber", "cauchy")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # holds arrays: compare by identity
 class PoseBlock:
     """A pose ``T_W_name`` (4, 4) to estimate; ``free[i]`` says whether local DOF i may move."""
 
@@ -53,7 +53,7 @@ class PoseBlock:
         object.__setattr__(self, "free", tuple(bool(f) for f in self.free))
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # holds arrays: compare by identity
 class Observations:
     """A batch of n point observations (see :mod:`rigcal.problem.residuals`).
 
@@ -104,7 +104,7 @@ class Observations:
         return replace(self, sigma=np.broadcast_to(sigma, self.measured.shape).copy())
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # holds arrays: compare by identity
 class ElevationLimits:
     """Hinge constraints |elevation(point in observer)| <= max_elevation_rad (paper eq. 4)."""
 
@@ -120,7 +120,7 @@ class ElevationLimits:
         return len(self.frame)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # holds arrays: compare by identity
 class Problem:
     poses: tuple[PoseBlock, ...]
     observations: tuple[Observations, ...]
@@ -168,7 +168,7 @@ class Problem:
         )
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # holds arrays: compare by identity
 class Solution:
     """What :func:`solve` found.
 

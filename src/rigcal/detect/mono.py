@@ -1,0 +1,771 @@
+"""The circle board in one image of a calibrated camera -> the four hole centres in 3D.
+
+Pipeline (paper section III-B: "the four circles are detected based on edges in the 2D image
+plane; using the known geometry of the calibration board, PnP extracts the 3D locations"):
+
+1. **Hole candidates.** The holes show the darker scene behind a bright plate. The grey image
+   (optionally an ROI, by default all of it) is halved and thresholded at several levels; the
+   outer contours at each level that are well fitted by an ellipse, of a plausible size and
+   surrounded by a brighter ring (the plate) are candidates. Candidates found at several levels
+   are merged, keeping the level closest to half-way between hole and plate grey.
+2. **The square pattern.** Among the candidates, the four whose centres form a projected square
+   (an affine image of the board's square up to a small perspective residual) and whose ellipses
+   are the images of the board's circles under that affine map (size and shape) are chosen, and
+   ordered top-left, top-right, bottom-left, bottom-right as seen in the image (clockwise from
+   the corner nearest the top-left direction).
+3. **PnP.** ``cv2.solvePnPGeneric`` (IPPE, planar; with distortion) on the ellipse centres gives
+   both planar pose hypotheses ``T_camera_board``.
+4. **Rim refinement (bias correction).** The centre of a projected circle is not the projection
+   of its centre, so ellipse centres bias the pose. Sub-pixel rim edge points are found along
+   rays of each ellipse at full resolution, and the pose is refined (6 DoF, robust loss) so that
+   the projected rims of the four 3D circles (diameter ``hole_diameter_m``) pass through them,
+   measured as the distance along the projected rim's normal [px]. Both IPPE hypotheses are
+   refined; the one with the lower cost wins. The edges are then re-sampled along the normals of
+   the projected rims and the pose refined once more.
+
+The result holds the four hole centres ``T_camera_board @ c_board`` in the camera optical frame
+(4, 3) [m], ordered TL, TR, BL, BR (see :mod:`rigcal.targets.circle_board`). ``quality``:
+
+* ``reprojection_rms_px`` - RMS distance of the rim edge points to the projected 3D rims;
+* ``square_side_error_m`` - largest deviation from ``spacing_m`` of the four sides between
+  hole centres fitted independently (a circle per hole in the fitted board plane): a
+  consistency check, since the returned centres form the exact square by construction;
+* ``hole_diameter_error_m`` - largest deviation of those independent circles' diameters;
+* ``distance_m`` (camera to board centre), ``tilt_deg`` (board normal vs line of sight),
+  ``centre_bias_px`` (largest ellipse-centre vs projected-centre offset: the corrected bias),
+  ``pnp_rms_px`` (PnP on ellipse centres), ``rim_points``, ``candidates``.
+
+Failures (:class:`DetectionFailure` ``reason``): ``wrong_image_size``, ``too_few_holes``,
+``no_square_pattern``, ``pnp_failed``, ``poor_fit``.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import cv2
+import numpy as np
+from scipy.optimize import least_squares
+
+from rigcal.dataset import BoardGeometry
+from rigcal.detect.result import BoardDetection, DetectionFailure
+from rigcal.errors import ConfigError
+from rigcal.geometry.se3 import from_rt, se3_exp
+from rigcal.recording import ImageFrame
+from rigcal.sensors.camera.base import CameraModel
+from rigcal.targets.circle_board import board_centres
+
+WRONG_IMAGE_SIZE = "wrong_image_size"
+TOO_FEW_HOLES = "too_few_holes"
+NO_SQUARE_PATTERN = "no_square_pattern"
+PNP_FAILED = "pnp_failed"
+POOR_FIT = "poor_fit"
+
+# canonical image angles atan2(dv, du) of TL, TR, BR, BL around the pattern centre (v down)
+_CORNER_ANGLES = np.radians([-135.0, -45.0, 45.0, 135.0])
+# cyclic order TL, TR, BR, BL -> detection order TL, TR, BL, BR
+_CYCLIC_TO_DETECTION = (0, 1, 3, 2)
+
+
+@dataclass(frozen=True)
+class MonoDetectorConfig:
+    """Settings of :func:`detect_board_mono`.
+
+    Defaults follow the original tool's ``image_processing.yaml`` where it applies (Gaussian
+    blur sigma 2 px before edge work; holes of radius 20-38 px at its ROI's distances), widened
+    to search the whole image and boards from ~1.5 m to ~12 m with a 1400 px focal length.
+    """
+
+    roi: tuple[int, int, int, int] | None = None
+    """Optional search region ``(x, y, width, height)`` [px]; ``None`` searches the whole image."""
+    blur_sigma_px: float = 2.0
+    """Gaussian blur before thresholding (full-resolution pixels)."""
+    edge_sigma_px: float = 1.0
+    """Gaussian blur of the full-resolution image the rim edges are located in."""
+    min_hole_radius_px: float = 6.0
+    max_hole_radius_px: float = 200.0
+    threshold_step: int = 12
+    """Grey-level step between the thresholds that segment dark holes."""
+    min_contrast: float = 25.0
+    """Least grey-level difference between the plate around a hole and the hole."""
+    max_ellipse_residual: float = 0.06
+    """Largest RMS radial deviation of a hole contour from its ellipse, relative to its radius."""
+    pattern_tolerance: float = 0.3
+    """Relative tolerance of the square pattern test (ellipse sizes, perspective residual)."""
+    max_candidates: int = 40
+    refine_rim: bool = True
+    """Correct the ellipse-centre bias by fitting the projected 3D rims (recommended)."""
+    rim_points_per_hole: int = 96
+    max_reprojection_rms_px: float = 2.0
+    """Detections whose rim fit RMS exceeds this fail with ``poor_fit``."""
+
+    def __post_init__(self) -> None:
+        positive = (
+            "blur_sigma_px",
+            "edge_sigma_px",
+            "min_hole_radius_px",
+            "max_hole_radius_px",
+            "threshold_step",
+            "min_contrast",
+            "max_ellipse_residual",
+            "pattern_tolerance",
+            "max_candidates",
+            "rim_points_per_hole",
+            "max_reprojection_rms_px",
+        )
+        for name in positive:
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not v > 0:
+                raise ConfigError(f"mono detector: {name} must be a positive number, got {v!r}")
+        if self.min_hole_radius_px >= self.max_hole_radius_px:
+            raise ConfigError(
+                f"mono detector: min_hole_radius_px ({self.min_hole_radius_px}) must be below "
+                f"max_hole_radius_px ({self.max_hole_radius_px})"
+            )
+        if self.rim_points_per_hole < 8:
+            raise ConfigError(
+                f"mono detector: rim_points_per_hole must be >= 8, got {self.rim_points_per_hole}"
+            )
+        if self.roi is not None:
+            roi = tuple(self.roi)
+            if len(roi) != 4 or any(isinstance(v, bool) or not isinstance(v, int) for v in roi):
+                raise ConfigError(
+                    f"mono detector: roi must be four integers (x, y, width, height), got {self.roi!r}"
+                )
+            if roi[0] < 0 or roi[1] < 0 or roi[2] <= 0 or roi[3] <= 0:
+                raise ConfigError(
+                    f"mono detector: roi needs x, y >= 0 and width, height > 0, got {roi}"
+                )
+            object.__setattr__(self, "roi", roi)
+
+
+class HoleEllipse(NamedTuple):
+    """A hole candidate in the image: centre (u, v) [px], semi-axes ``a >= b`` [px], ``angle``
+    [rad] of the major axis from the u axis; ``plate`` / ``hole`` grey levels around / inside."""
+
+    u: float
+    v: float
+    a: float
+    b: float
+    angle: float
+    plate: float
+    hole: float
+    threshold: float
+
+    @property
+    def centre(self) -> np.ndarray:
+        return np.array([self.u, self.v])
+
+    def shape_matrix(self) -> np.ndarray:
+        """(2, 2) M with the ellipse ``{c + M^(1/2) x : |x| = 1}``, i.e. R diag(a^2, b^2) R^T."""
+        c, s = math.cos(self.angle), math.sin(self.angle)
+        R = np.array([[c, -s], [s, c]])
+        return R @ np.diag([self.a**2, self.b**2]) @ R.T
+
+    def points(self, angles: np.ndarray, scale: float | np.ndarray = 1.0) -> np.ndarray:
+        """(N, 2) points at parameter ``angles`` on the ellipse scaled by ``scale``."""
+        c, s = math.cos(self.angle), math.sin(self.angle)
+        x = self.a * np.cos(angles) * scale
+        y = self.b * np.sin(angles) * scale
+        return np.stack([self.u + c * x - s * y, self.v + s * x + c * y], axis=-1)
+
+
+@dataclass(frozen=True, eq=False)
+class MonoBoardFit:
+    """Everything :func:`fit_board_mono` found: the detection plus the pose and image evidence.
+
+    ``T_camera_board`` (4, 4) maps board-frame points into the camera optical frame;
+    ``ellipses`` are the four chosen holes in detection order (TL, TR, BL, BR);
+    ``rim_points_px`` (M, 2) the rim edge points used in the final fit and ``rim_hole`` (M,)
+    which hole each belongs to; ``projected_centres_px`` (4, 2) the projections of the 3D hole
+    centres.
+    """
+
+    detection: BoardDetection
+    T_camera_board: np.ndarray
+    ellipses: tuple[HoleEllipse, ...]
+    rim_points_px: np.ndarray
+    rim_hole: np.ndarray
+    projected_centres_px: np.ndarray
+
+    def __post_init__(self) -> None:
+        for name in ("T_camera_board", "rim_points_px", "rim_hole", "projected_centres_px"):
+            arr = np.array(getattr(self, name))
+            arr.setflags(write=False)
+            object.__setattr__(self, name, arr)
+
+
+def detect_board_mono(
+    frame: ImageFrame,
+    camera: CameraModel,
+    board: BoardGeometry = BoardGeometry(),
+    config: MonoDetectorConfig = MonoDetectorConfig(),
+) -> BoardDetection | DetectionFailure:
+    """The board's four hole centres (4, 3) in the camera optical frame [m] (TL, TR, BL, BR),
+    or a :class:`DetectionFailure` with its reason. See the module docstring."""
+    out = fit_board_mono(frame, camera, board, config)
+    return out.detection if isinstance(out, MonoBoardFit) else out
+
+
+def fit_board_mono(
+    frame: ImageFrame,
+    camera: CameraModel,
+    board: BoardGeometry = BoardGeometry(),
+    config: MonoDetectorConfig = MonoDetectorConfig(),
+) -> MonoBoardFit | DetectionFailure:
+    """Like :func:`detect_board_mono`, returning the pose and image evidence too."""
+
+    def fail(reason: str, detail: str) -> DetectionFailure:
+        return DetectionFailure(frame.sensor, frame.t_ns, reason, detail)
+
+    if frame.size_wh != camera.size_wh:
+        return fail(
+            WRONG_IMAGE_SIZE,
+            f"image is {frame.size_wh[0]}x{frame.size_wh[1]} px but the {camera.name} camera "
+            f"intrinsics are for {camera.width}x{camera.height} px",
+        )
+    grey = frame.image if frame.image.ndim == 2 else cv2.cvtColor(frame.image, cv2.COLOR_BGR2GRAY)
+    candidates = find_hole_candidates(grey, board, config)
+    if len(candidates) < 4:
+        return fail(
+            TOO_FEW_HOLES,
+            f"found {len(candidates)} hole candidate(s), need 4 (radius "
+            f"{config.min_hole_radius_px:g}-{config.max_hole_radius_px:g} px, contrast >= "
+            f"{config.min_contrast:g})",
+        )
+    pattern = find_square_pattern(candidates, board, config)
+    if pattern is None:
+        return fail(
+            NO_SQUARE_PATTERN,
+            f"no 4 of the {len(candidates)} hole candidates form the board's square "
+            f"(spacing {board.spacing_m:g} m, hole diameter {board.hole_diameter_m:g} m)",
+        )
+    ellipses = tuple(candidates[i] for i in pattern)
+    centres_px = np.array([e.centre for e in ellipses])
+    obj = board_centres(board)
+
+    poses = _pnp(obj, centres_px, camera)
+    if not poses:
+        return fail(PNP_FAILED, f"cv2.solvePnPGeneric (IPPE) found no pose for {centres_px.tolist()}")
+    pnp_rms = min(rms for _, rms in poses)
+    radius_m = board.hole_diameter_m / 2.0
+
+    if config.refine_rim:
+        edge = _edge_image(grey, centres_px, ellipses, config)
+        rim_px, rim_hole = _rim_points_radial(edge, ellipses, config)
+        if rim_px.shape[0] < 12:
+            return fail(PNP_FAILED, f"only {rim_px.shape[0]} rim edge points found on the holes")
+        best = None
+        for T0, _ in poses:
+            fit = _fit_rims(T0, rim_px, rim_hole, obj, radius_m, camera)
+            if fit is not None and (best is None or fit[1] < best[1]):
+                best = fit
+        if best is None:
+            return fail(PNP_FAILED, "the rim fit diverged for both IPPE pose hypotheses")
+        T = best[0]
+        rim_px, rim_hole = _rim_points_along_model(edge, T, obj, radius_m, camera, ellipses, config)
+        if rim_px.shape[0] < 12:
+            return fail(PNP_FAILED, f"only {rim_px.shape[0]} rim edge points found on the holes")
+        fit = _fit_rims(T, rim_px, rim_hole, obj, radius_m, camera)
+        if fit is None:
+            return fail(PNP_FAILED, "the rim fit diverged")
+        T = fit[0]
+        resid = _rim_residuals_px(T, camera.unproject(rim_px), rim_px, rim_hole, obj, radius_m, camera)
+        keep = np.isfinite(resid)
+        rms = float(np.sqrt(np.mean(resid[keep] ** 2))) if np.any(keep) else math.inf
+    else:
+        T = min(poses, key=lambda p: p[1])[0]
+        rim_px, rim_hole = np.zeros((0, 2)), np.zeros(0, dtype=int)
+        rms = pnp_rms
+
+    centres_cam = obj @ T[:3, :3].T + T[:3, 3]
+    if not np.all(centres_cam[:, 2] > 0):
+        return fail(PNP_FAILED, f"the pose puts the board behind the camera: {centres_cam.tolist()}")
+    if not rms <= config.max_reprojection_rms_px:
+        return fail(
+            POOR_FIT,
+            f"rim reprojection RMS {rms:.2f} px exceeds {config.max_reprojection_rms_px:g} px",
+        )
+    proj, _ = camera.project(centres_cam)
+    quality: dict[str, float] = {
+        "reprojection_rms_px": rms,
+        "pnp_rms_px": pnp_rms,
+        "distance_m": float(np.linalg.norm(T[:3, 3])),
+        "tilt_deg": float(
+            np.degrees(np.arccos(abs(T[:3, 2] @ T[:3, 3]) / np.linalg.norm(T[:3, 3])))
+        ),
+        "centre_bias_px": float(np.max(np.linalg.norm(proj - centres_px, axis=1))),
+        "rim_points": float(rim_px.shape[0]),
+        "candidates": float(len(candidates)),
+    }
+    if rim_px.shape[0]:
+        side_err, diam_err = _independent_hole_check(T, rim_px, rim_hole, board, camera)
+        quality["square_side_error_m"] = side_err
+        quality["hole_diameter_error_m"] = diam_err
+    else:
+        quality["square_side_error_m"] = _side_error(centres_cam, board)
+    detection = BoardDetection(frame.sensor, frame.t_ns, centres_cam, quality)
+    return MonoBoardFit(detection, T, ellipses, rim_px, rim_hole, proj)
+
+
+# ---------------------------------------------------------------------------- candidates
+def _roi(config: MonoDetectorConfig, width: int, height: int) -> tuple[int, int, int, int]:
+    if config.roi is None:
+        return 0, 0, width, height
+    x, y, w, h = config.roi
+    x0, y0 = min(x, width), min(y, height)
+    return x0, y0, min(x + w, width) - x0, min(y + h, height) - y0
+
+
+def find_hole_candidates(
+    grey: np.ndarray, board: BoardGeometry, config: MonoDetectorConfig
+) -> list[HoleEllipse]:
+    """Dark elliptical blobs inside a brighter surround in a uint8 grey image (H, W), in
+    full-resolution pixel coordinates, best first."""
+    x0, y0, w, h = _roi(config, grey.shape[1], grey.shape[0])
+    if w < 8 or h < 8:
+        return []
+    crop = grey[y0 : y0 + h, x0 : x0 + w]
+    scale = 2 if config.min_hole_radius_px >= 8 else 1
+    small = crop if scale == 1 else cv2.resize(crop, (w // 2, h // 2), interpolation=cv2.INTER_AREA)
+    sigma = config.blur_sigma_px / scale
+    small = cv2.GaussianBlur(small, (0, 0), sigma) if sigma > 0.3 else small
+    sh, sw = small.shape
+    rmin, rmax = config.min_hole_radius_px / scale, config.max_hole_radius_px / scale
+    lo, hi = int(small.min()), int(small.max())
+    found: list[HoleEllipse] = []
+    step = int(config.threshold_step)
+    for t in range(lo + step, hi, step):
+        binary = (small < t).astype(np.uint8)
+        contours, _ = cv2.findContours(binary, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+        for c in contours:
+            n = c.shape[0]
+            if n < 2 * math.pi * rmin or n > 2 * math.pi * rmax * 2.5:
+                continue
+            pts = c.reshape(-1, 2)
+            if pts[:, 0].min() <= 0 or pts[:, 1].min() <= 0:
+                continue  # touches the image or ROI border: not a whole hole
+            if pts[:, 0].max() >= sw - 1 or pts[:, 1].max() >= sh - 1:
+                continue
+            ell = _ellipse_from_contour(pts.astype(np.float64), rmin, rmax, config)
+            if ell is None:
+                continue
+            cu, cv_, a, b, ang = ell
+            plate, hole, ok = _surround(small, cu, cv_, a, b, ang, t, config)
+            if not ok:
+                continue
+            found.append(
+                HoleEllipse(
+                    (cu + 0.5) * scale - 0.5 + x0,
+                    (cv_ + 0.5) * scale - 0.5 + y0,
+                    a * scale,
+                    b * scale,
+                    ang,
+                    plate,
+                    hole,
+                    float(t),
+                )
+            )
+    return _merge_candidates(found)[: int(config.max_candidates)]
+
+
+def _ellipse_from_contour(
+    pts: np.ndarray, rmin: float, rmax: float, config: MonoDetectorConfig
+) -> tuple[float, float, float, float, float] | None:
+    (cu, cv_), (d1, d2), ang_deg = cv2.fitEllipse(pts.astype(np.float32))
+    a, b = d1 / 2.0, d2 / 2.0
+    ang = math.radians(ang_deg)
+    if b > a:
+        a, b = b, a
+        ang += math.pi / 2
+    if not (b >= rmin * 0.5 and a >= rmin and a <= rmax) or b < 0.25 * a:
+        return None
+    # radial residual of the contour (pixel centres lie ~0.5 px inside the true boundary)
+    c, s = math.cos(ang), math.sin(ang)
+    d = pts - (cu, cv_)
+    x = (c * d[:, 0] + s * d[:, 1]) / (a + 0.5)
+    y = (-s * d[:, 0] + c * d[:, 1]) / (b + 0.5)
+    rho = np.sqrt(x * x + y * y)
+    if float(np.sqrt(np.mean((rho - 1.0) ** 2))) > config.max_ellipse_residual + 0.5 / b:
+        return None
+    return cu, cv_, a, b, ang
+
+
+def _sample_nearest(img: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    ij = np.rint(pts).astype(int)
+    h, w = img.shape
+    ok = (ij[:, 0] >= 0) & (ij[:, 0] < w) & (ij[:, 1] >= 0) & (ij[:, 1] < h)
+    out = np.full(pts.shape[0], np.nan)
+    out[ok] = img[ij[ok, 1], ij[ok, 0]]
+    return out
+
+
+def _surround(
+    img: np.ndarray, cu: float, cv_: float, a: float, b: float, ang: float, t: float,
+    config: MonoDetectorConfig,
+) -> tuple[float, float, bool]:
+    """Plate grey (ring 1.3-1.6 radii), hole grey (inner 0.5 radii), and whether the ring is a
+    bright surround: >= 90 % of it above the threshold and contrast >= min_contrast."""
+    e = HoleEllipse(cu, cv_, a, b, ang, 0, 0, t)
+    th = np.linspace(0, 2 * np.pi, 48, endpoint=False)
+    ring = np.concatenate([_sample_nearest(img, e.points(th, s)) for s in (1.3, 1.45, 1.6)])
+    inner = np.concatenate([_sample_nearest(img, e.points(th[::3], s)) for s in (0.0, 0.25, 0.5)])
+    if np.isnan(ring).any() or np.isnan(inner).any():
+        return 0.0, 0.0, False
+    plate, hole = float(np.median(ring)), float(np.median(inner))
+    ok = np.mean(ring >= t) >= 0.9 and plate - hole >= config.min_contrast
+    return plate, hole, bool(ok)
+
+
+def _merge_candidates(found: list[HoleEllipse]) -> list[HoleEllipse]:
+    """One candidate per hole: the level closest to half-way between hole and plate grey."""
+    def level_error(e: HoleEllipse) -> float:
+        return abs(e.threshold - 0.5 * (e.plate + e.hole)) / max(e.plate - e.hole, 1.0)
+
+    order = sorted(found, key=level_error)
+    kept: list[HoleEllipse] = []
+    for e in order:
+        same = any(
+            math.hypot(e.u - k.u, e.v - k.v) < 0.6 * min(e.b, k.b)
+            and 0.6 < e.a / k.a < 1.0 / 0.6
+            for k in kept
+        )
+        if not same:
+            kept.append(e)
+    # holes seen at more levels are more trustworthy: rank by support, then contrast
+    support = [
+        sum(math.hypot(e.u - f.u, e.v - f.v) < 0.6 * e.b for f in found) for e in kept
+    ]
+    ranked = sorted(zip(kept, support), key=lambda es: (-es[1], -(es[0].plate - es[0].hole)))
+    return [e for e, _ in ranked]
+
+
+# ---------------------------------------------------------------------------- the square
+def order_corners(centres_px: np.ndarray) -> np.ndarray | None:
+    """Indices (4,) ordering four image points TL, TR, BL, BR, or None if they are not the
+    corners of a convex quadrilateral."""
+    p = np.asarray(centres_px, dtype=float)
+    d = p - p.mean(axis=0)
+    cyc = np.argsort(np.arctan2(d[:, 1], d[:, 0]))  # clockwise on screen (v down)
+    q = p[cyc]
+    e = np.roll(q, -1, axis=0) - q
+    cross = e[:, 0] * np.roll(e, -1, axis=0)[:, 1] - e[:, 1] * np.roll(e, -1, axis=0)[:, 0]
+    if not np.all(cross > 0):
+        return None
+    ang = np.arctan2(d[cyc, 1], d[cyc, 0])
+    best, best_cost = 0, math.inf
+    for k in range(4):
+        diff = np.angle(np.exp(1j * (np.roll(ang, -k) - _CORNER_ANGLES)))
+        cost = float(np.sum(diff**2))
+        if cost < best_cost:
+            best, best_cost = k, cost
+    cyc = np.roll(cyc, -best)
+    return cyc[list(_CYCLIC_TO_DETECTION)]
+
+
+def find_square_pattern(
+    candidates: list[HoleEllipse], board: BoardGeometry, config: MonoDetectorConfig
+) -> tuple[int, int, int, int] | None:
+    """Indices of the four candidates forming the board's square, ordered TL, TR, BL, BR."""
+    n = len(candidates)
+    if n < 4:
+        return None
+    c = np.array([e.centre for e in candidates])
+    a = np.array([e.a for e in candidates])
+    tol = config.pattern_tolerance
+    ratio = board.spacing_m / (board.hole_diameter_m / 2.0)  # centre distance / radius (3.2)
+    dist = np.linalg.norm(c[:, None] - c[None], axis=-1)
+    amean = 0.5 * (a[:, None] + a[None])
+    size_ok = np.maximum(a[:, None], a[None]) <= (1 + tol) ** 2 * np.minimum(a[:, None], a[None])
+    near = (dist > 0.2 * ratio * amean) & (dist < math.sqrt(2) * ratio * (1 + tol) * amean)
+    adj = size_ok & near
+    np.fill_diagonal(adj, False)
+    obj = board_centres(board)[:, :2] * np.array([1.0, -1.0])  # board y up -> image v down
+    r_board = board.hole_diameter_m / 2.0
+    best, best_score = None, math.inf
+    nodes = [i for i in range(n) if adj[i].sum() >= 3]
+    for combo in itertools.combinations(nodes, 4):
+        if not all(adj[i, j] for i, j in itertools.combinations(combo, 2)):
+            continue
+        idx = np.array(combo)
+        order = order_corners(c[idx])
+        if order is None:
+            continue
+        idx = idx[order]
+        score = _pattern_score(c[idx], [candidates[i] for i in idx], obj, r_board, tol)
+        if score is not None and score < best_score:
+            best, best_score = tuple(int(i) for i in idx), score
+    return best
+
+
+def _pattern_score(
+    img: np.ndarray, ells: list[HoleEllipse], obj: np.ndarray, r_board: float, tol: float
+) -> float | None:
+    """How well four ordered ellipses match an affine image of the board (lower is better)."""
+    X = np.column_stack([obj, np.ones(4)])
+    sol, *_ = np.linalg.lstsq(X, img, rcond=None)
+    A = sol[:2].T  # image = A @ board_xy(v down) + t
+    if np.linalg.det(A) <= 0:
+        return None
+    side = math.sqrt(abs(np.linalg.det(A))) * abs(obj[0, 0]) * 2
+    resid = float(np.max(np.linalg.norm(X @ sol - img, axis=1))) / side
+    if resid > 0.25 * tol:
+        return None
+    # each ellipse should be the affine image of a circle of the board's hole radius
+    Mp = (A @ A.T) * r_board**2
+    shape_err = 0.0
+    for e in ells:
+        Mm = e.shape_matrix()
+        w, V = np.linalg.eigh(Mm)
+        Wi = V @ np.diag(1.0 / np.sqrt(w)) @ V.T
+        s = np.sqrt(np.linalg.eigvalsh(Wi @ Mp @ Wi))
+        # measured holes are blurred by ~1 px; allow that on top of the relative tolerance
+        slack = 1.0 / max(e.b, 1.0)
+        if s.min() < 1 / (1 + tol) - slack or s.max() > 1 + tol + slack:
+            return None
+        shape_err = max(shape_err, float(np.max(np.abs(np.log(s)))))
+    return resid + shape_err
+
+
+# ---------------------------------------------------------------------------- PnP
+def _pnp(obj: np.ndarray, img: np.ndarray, camera: CameraModel) -> list[tuple[np.ndarray, float]]:
+    """Pose hypotheses (T_camera_board, RMS px) of IPPE on undistorted ellipse centres."""
+    rays = camera.unproject(img)
+    if not np.all(np.isfinite(rays)) or np.any(rays[:, 2] <= 0):
+        return []
+    xn = rays[:, :2] / rays[:, 2:3]
+    try:
+        n, rvecs, tvecs, _ = cv2.solvePnPGeneric(
+            obj.astype(np.float64),
+            xn.reshape(-1, 1, 2).astype(np.float64),
+            np.eye(3),
+            None,
+            flags=cv2.SOLVEPNP_IPPE,
+        )
+    except cv2.error:
+        return []
+    out = []
+    for rvec, tvec in zip(rvecs[:n], tvecs[:n]):
+        R, _ = cv2.Rodrigues(rvec)
+        T = from_rt(R, tvec.reshape(3))
+        pts = obj @ R.T + tvec.reshape(3)
+        if np.any(pts[:, 2] <= 0) or not np.all(np.isfinite(T)):
+            continue
+        uv, valid = camera.project(pts)
+        if not valid.all():
+            continue
+        out.append((T, float(np.sqrt(np.mean(np.sum((uv - img) ** 2, axis=1))))))
+    return out
+
+
+# ---------------------------------------------------------------------------- rim edges
+class _EdgeImage(NamedTuple):
+    img: np.ndarray  # float32 blurred grey crop
+    x0: int
+    y0: int
+    contrast: float  # least plate - hole grey of the four holes
+
+
+def _edge_image(
+    grey: np.ndarray, centres: np.ndarray, ellipses: tuple[HoleEllipse, ...],
+    config: MonoDetectorConfig,
+) -> _EdgeImage:
+    amax = max(e.a for e in ellipses)
+    margin = int(2.0 * amax + 8)
+    x0 = max(int(centres[:, 0].min()) - margin, 0)
+    y0 = max(int(centres[:, 1].min()) - margin, 0)
+    x1 = min(int(centres[:, 0].max()) + margin, grey.shape[1])
+    y1 = min(int(centres[:, 1].max()) + margin, grey.shape[0])
+    crop = grey[y0:y1, x0:x1].astype(np.float32)
+    if config.edge_sigma_px > 0.3:
+        crop = cv2.GaussianBlur(crop, (0, 0), config.edge_sigma_px)
+    return _EdgeImage(crop, x0, y0, min(e.plate - e.hole for e in ellipses))
+
+
+def _edges_along(
+    edge: _EdgeImage, start: np.ndarray, direction: np.ndarray, length: np.ndarray, step: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Strongest dark-to-bright edge along segments ``start + s * direction``, s in [0, length]:
+    returns the edge points (K, 2) [px] and a mask (K,) of segments with a clear edge."""
+    m = int(np.ceil(length.max() / step)) + 1
+    s = np.arange(m) * step
+    pts = start[:, None, :] + s[None, :, None] * direction[:, None, :]
+    map_x = (pts[..., 0] - edge.x0).astype(np.float32)
+    map_y = (pts[..., 1] - edge.y0).astype(np.float32)
+    prof = cv2.remap(edge.img, map_x, map_y, cv2.INTER_LINEAR, borderValue=np.nan)
+    inside = s[None, :] <= length[:, None]
+    deriv = np.gradient(prof.astype(np.float64), step, axis=1)
+    deriv[~inside | ~np.isfinite(deriv)] = -np.inf
+    k = np.argmax(deriv, axis=1)
+    rows = np.arange(len(k))
+    peak = deriv[rows, k]
+    interior = (k > 0) & (k < m - 1) & (s[np.minimum(k + 1, m - 1)] <= length)
+    km, kp = np.maximum(k - 1, 0), np.minimum(k + 1, m - 1)
+    ym, y0, yp = deriv[rows, km], peak, deriv[rows, kp]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        den = ym - 2 * y0 + yp
+        off = np.where(interior & (den < 0), 0.5 * (ym - yp) / den, 0.0)
+    off = np.clip(np.nan_to_num(off), -0.5, 0.5)
+    # a blurred step of height H peaks at ~H / (2.5 sigma) per px; ask for a quarter of that
+    min_peak = 0.25 * edge.contrast / (2.5 * max(1.0, 1.5 * 1.0))
+    ok = interior & np.isfinite(peak) & (peak >= min_peak)
+    pos = (k + off) * step
+    return start + pos[:, None] * direction, ok
+
+
+def _rim_points_radial(
+    edge: _EdgeImage, ellipses: tuple[HoleEllipse, ...], config: MonoDetectorConfig
+) -> tuple[np.ndarray, np.ndarray]:
+    """Edge points on rays from each ellipse's centre, scanning 0.6 to 1.4 of its radius."""
+    n = int(config.rim_points_per_hole)
+    th = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    pts, holes = [], []
+    for i, e in enumerate(ellipses):
+        inner = e.points(th, 0.6)
+        outer = e.points(th, 1.4)
+        d = outer - inner
+        length = np.linalg.norm(d, axis=1)
+        p, ok = _edges_along(edge, inner, d / length[:, None], length, 0.25)
+        pts.append(p[ok])
+        holes.append(np.full(int(ok.sum()), i))
+    return np.concatenate(pts), np.concatenate(holes)
+
+
+def _rim_points_along_model(
+    edge: _EdgeImage, T: np.ndarray, obj: np.ndarray, radius_m: float, camera: CameraModel,
+    ellipses: tuple[HoleEllipse, ...], config: MonoDetectorConfig,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Edge points along the normals of the projected 3D rims under pose ``T``."""
+    n = int(config.rim_points_per_hole)
+    th = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    R, t = T[:3, :3], T[:3, 3]
+    pts, holes = [], []
+    for i, e in enumerate(ellipses):
+        rim_b = obj[i] + radius_m * np.stack([np.cos(th), np.sin(th), np.zeros(n)], axis=1)
+        tan_b = np.stack([-np.sin(th), np.cos(th), np.zeros(n)], axis=1)
+        rim_c = rim_b @ R.T + t
+        uv, valid = camera.project(rim_c)
+        J = camera.project_jacobian(rim_c)
+        tan = np.einsum("nij,nj->ni", J, tan_b @ R.T)
+        # outward normal in the image: perpendicular to the tangent, away from the centre
+        nrm = np.stack([tan[:, 1], -tan[:, 0]], axis=1)
+        nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+        flip = np.sum(nrm * (uv - uv.mean(axis=0)), axis=1) < 0
+        nrm[flip] *= -1
+        half = max(3.0, 0.25 * e.b)
+        start = uv - half * nrm
+        length = np.full(n, 2 * half)
+        good = valid & np.all(np.isfinite(nrm), axis=1)
+        p, ok = _edges_along(edge, start[good], nrm[good], length[good], 0.25)
+        pts.append(p[ok])
+        holes.append(np.full(int(ok.sum()), i))
+    return np.concatenate(pts), np.concatenate(holes)
+
+
+# ---------------------------------------------------------------------------- rim fit
+def _rim_residuals_px(
+    T: np.ndarray, rays: np.ndarray, uv: np.ndarray, hole: np.ndarray, obj: np.ndarray,
+    radius_m: float, camera: CameraModel,
+) -> np.ndarray:
+    """(M,) signed distances [px] of rim points ``uv`` to the projected 3D rims under ``T``,
+    along the rim's image normal (first order); NaN where the ray misses the board plane."""
+    R, t = T[:3, :3], T[:3, 3]
+    nrm = R[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = (nrm @ t) / (rays @ nrm)
+    P_c = rays * s[:, None]
+    P_b = (P_c - t) @ R  # R^T (P - t)
+    d = P_b[:, :2] - obj[hole, :2]
+    rho = np.linalg.norm(d, axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = d / rho[:, None]
+    Q_b = np.column_stack([obj[hole, :2] + radius_m * u, np.zeros(len(hole))])
+    Q_c = Q_b @ R.T + t
+    proj, _ = camera.project(Q_c)
+    J = camera.project_jacobian(Q_c)
+    tan_c = np.column_stack([-u[:, 1], u[:, 0], np.zeros(len(hole))]) @ R.T
+    tan = np.einsum("nij,nj->ni", J, tan_c)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        n_img = np.column_stack([tan[:, 1], -tan[:, 0]]) / np.linalg.norm(tan, axis=1)[:, None]
+    r = np.sum(n_img * (uv - proj), axis=1)
+    r[~(s > 0)] = np.nan
+    return r
+
+
+def _fit_rims(
+    T0: np.ndarray, uv: np.ndarray, hole: np.ndarray, obj: np.ndarray, radius_m: float,
+    camera: CameraModel,
+) -> tuple[np.ndarray, float] | None:
+    """Refine T_camera_board (right perturbation, robust loss); returns (T, cost) or None."""
+    rays = camera.unproject(uv)
+    ok = np.all(np.isfinite(rays), axis=1)
+    rays, uv, hole = rays[ok], uv[ok], hole[ok]
+    if len(hole) < 12:
+        return None
+
+    def fun(xi: np.ndarray) -> np.ndarray:
+        r = _rim_residuals_px(T0 @ se3_exp(xi), rays, uv, hole, obj, radius_m, camera)
+        return np.where(np.isfinite(r), r, 1e3)
+
+    try:
+        res = least_squares(
+            fun, np.zeros(6), loss="soft_l1", f_scale=1.0, x_scale="jac", max_nfev=100
+        )
+    except (ValueError, np.linalg.LinAlgError):
+        return None
+    if not np.all(np.isfinite(res.x)):
+        return None
+    T = T0 @ se3_exp(res.x)
+    if np.any((obj @ T[:3, :3].T + T[:3, 3])[:, 2] <= 0):
+        return None
+    return T, float(res.cost)
+
+
+def _independent_hole_check(
+    T: np.ndarray, uv: np.ndarray, hole: np.ndarray, board: BoardGeometry, camera: CameraModel
+) -> tuple[float, float]:
+    """(largest side error, largest diameter error) [m] of circles fitted to each hole's rim
+    points in the board plane of ``T`` independently of the board's layout."""
+    R, t = T[:3, :3], T[:3, 3]
+    rays = camera.unproject(uv)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = (R[:, 2] @ t) / (rays @ R[:, 2])
+    P_b = (rays * s[:, None] - t) @ R
+    centres, diam = [], []
+    for i in range(4):
+        q = P_b[(hole == i) & np.isfinite(s) & (s > 0), :2]
+        if q.shape[0] < 5:
+            return math.nan, math.nan
+        c, r = _fit_circle(q)
+        centres.append(c)
+        diam.append(2 * r)
+    c3 = np.column_stack([np.array(centres), np.zeros(4)])
+    side_err = _side_error(c3, board)
+    diam_err = float(np.max(np.abs(np.array(diam) - board.hole_diameter_m)))
+    return side_err, diam_err
+
+
+def _fit_circle(q: np.ndarray) -> tuple[np.ndarray, float]:
+    """Least-squares circle (centre (2,), radius) through 2D points, robust to a few outliers."""
+    A = np.column_stack([2 * q, np.ones(len(q))])
+    b = np.sum(q * q, axis=1)
+    sol, *_ = np.linalg.lstsq(A, b, rcond=None)
+    c0 = sol[:2]
+    r0 = math.sqrt(max(sol[2] + c0 @ c0, 1e-12))
+
+    def fun(x: np.ndarray) -> np.ndarray:
+        return np.linalg.norm(q - x[:2], axis=1) - x[2]
+
+    res = least_squares(fun, np.array([c0[0], c0[1], r0]), loss="soft_l1", f_scale=0.002)
+    return res.x[:2], float(res.x[2])
+
+
+def _side_error(centres: np.ndarray, board: BoardGeometry) -> float:
+    """Largest deviation [m] of the four sides TL-TR, BL-BR, TL-BL, TR-BR from spacing_m."""
+    sides = [(0, 1), (2, 3), (0, 2), (1, 3)]
+    return float(
+        max(abs(np.linalg.norm(centres[i] - centres[j]) - board.spacing_m) for i, j in sides)
+    )

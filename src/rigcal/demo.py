@@ -185,8 +185,10 @@ def raw_demo(
     sensors = demo_raw_rig(full_rate)
     placements = raw_rig_placements(rng, sensors, boards)
     if progress:
-        progress("simulating raw data", 0, 1)
+        progress("simulating raw data", 0, 0)
     rec = simulate_recording(sensors, placements, rng, dwell_s=2.5, transition_s=1.5)
+    if progress:
+        progress("simulating raw data", 1, 1)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     rig_text = raw_rig_yaml(sensors)

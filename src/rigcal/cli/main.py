@@ -89,15 +89,22 @@ def _parser() -> argparse.ArgumentParser:
     d = sub.add_parser(
         "demo",
         help="simulate a Prius-like rig, calibrate with all modes, compare with the truth",
-        description="Simulates a lidar, a stereo camera and a 2D radar on a car with 29 board "
-        "placements and realistic noise, calibrates with MCPE, FCPE and PSE, prints errors "
-        "against the simulated truth and writes every output. Needs no files.",
+        description="Simulates raw data of a lidar (HDL-64E-like scans), a stereo camera "
+        "(rendered 1936x1216 pairs) and a 2D radar (detection lists with clutter) on a car while "
+        "a board is held at 12 placements, writes it as a real ROS bag, detects the board, finds "
+        "the placements automatically, calibrates with MCPE, FCPE and PSE and prints the errors "
+        "against the simulated truth. Needs no files; about 1-2 minutes. --detections-only "
+        "skips the raw data (seconds).",
         epilog=EPILOG_DEMO,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     d.add_argument("--out", default="demo_out", metavar="DIR", help="output folder (default demo_out)")
     d.add_argument("--seed", type=int, default=7, help="random seed (default 7)")
-    d.add_argument("--boards", type=int, default=29, help="board placements (default 29)")
+    d.add_argument("--boards", type=int, default=None, help="board placements (default 12 raw, 29 detections-only)")
+    d.add_argument("--detections-only", action="store_true", help="simulate detections directly (fast, no raw data)")
+    d.add_argument("--bag-format", default="rosbag1", choices=["rosbag1", "rosbag2-sqlite3", "rosbag2-mcap"])
+    d.add_argument("--full-rate", action="store_true", help="simulate lidar and stereo at 10 Hz (slow)")
+    d.add_argument("--keep-bag", action="store_true", help="keep the simulated bag in the output folder")
     return p
 
 
@@ -128,7 +135,7 @@ def _summary(result, console) -> None:
     from rich.table import Table
 
     t = Table(title=f"{result.mode.upper()} - reference {result.reference}")
-    for col in ("sensor", "x [m]", "y [m]", "z [m]", "roll", "pitch", "yaw [deg]", "std xyz [mm]", "std rpy [deg]"):
+    for col in ("sensor", "x (m)", "y (m)", "z (m)", "roll", "pitch", "yaw (deg)", "std xyz (mm)", "std rpy (deg)"):
         t.add_column(col, justify="right" if col != "sensor" else "left")
     for name, est in result.sensors.items():
         x, y, z = est.xyz_m
@@ -142,7 +149,7 @@ def _summary(result, console) -> None:
         )
     console.print(t)
     e = Table(title="errors between sensors")
-    for col in ("pair", "RMSE [mm]", "cross-val RMSE [mm]", "worst board"):
+    for col in ("pair", "RMSE (mm)", "cross-val RMSE (mm)", "worst board"):
         e.add_column(col)
     for pair, v in result.rmse_m.items():
         cv = result.cross_validation_rmse_m.get(pair)
@@ -161,7 +168,7 @@ def _summary(result, console) -> None:
         console.print("outliers (excluded): none")
     if result.noise_sigma_m:
         console.print(
-            "PSE noise std [mm]: "
+            "PSE noise std (mm): "
             + "; ".join(f"{s}: {'/'.join(f'{v * 1000:.2f}' for v in sig)}" for s, sig in result.noise_sigma_m.items())
         )
     for w in result.warnings:
@@ -261,18 +268,22 @@ def _print_demo(report, console) -> None:
 
     console.print(report.description)
     table = Table(title="errors against the simulated truth (T_reference_sensor)")
-    for col in ("mode", "sensor", "translation [mm]", "rotation [deg]", "std xyz [mm]", "RMSE pairs [mm]"):
+    for col in (
+        "mode", "sensor", "translation (mm)", "rotation (deg)",
+        "2D radar: in-plane (mm) / yaw (deg)", "2D radar: z (mm) / tilt (deg)", "RMSE pairs (mm)",
+    ):
         table.add_column(col)
     for o in report.outcomes:
         rm = ", ".join(f"{k} {v * 1000:.1f}" for k, v in o.result.rmse_m.items())
         for i, (name, e) in enumerate(o.errors.items()):
-            s = o.result.sensors[name].std
+            radar2d = o.result.sensors[name].kind.value == "radar"
             table.add_row(
                 o.mode.upper() if i == 0 else "",
                 name,
                 f"{e.translation_m * 1000:.1f}",
                 f"{e.rotation_deg:.3f}",
-                "/".join(f"{s[k] * 1000:.1f}" for k in ("x_m", "y_m", "z_m")),
+                f"{e.in_plane_m * 1000:.1f} / {e.yaw_deg:.3f}" if radar2d else "",
+                f"{e.out_of_plane_m * 1000:.1f} / {e.tilt_deg:.2f}" if radar2d else "",
                 rm if i == 0 else "",
             )
         for w in o.result.warnings:
@@ -280,13 +291,38 @@ def _print_demo(report, console) -> None:
     console.print(table)
     for n in report.notes:
         console.print(n)
+    if any(s.kind.value == "radar" for o in report.outcomes[:1] for s in o.result.sensors.values()):
+        console.print(
+            "A 2D radar measures range and azimuth only: its in-plane pose is determined, its "
+            "z and tilt only through the elevation limit (see the warnings)."
+        )
     console.print(f"outputs written to {report.out_dir}/")
 
 
 def _cmd_demo(args, console) -> int:
-    from rigcal.demo import detections_demo
+    from rigcal.demo import detections_demo, raw_demo
 
-    _print_demo(detections_demo(args.out, seed=args.seed, boards=args.boards), console)
+    if args.detections_only:
+        _print_demo(detections_demo(args.out, seed=args.seed, boards=args.boards or 29), console)
+        return 0
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress
+
+    with Progress(
+        "[progress.description]{task.description}", BarColumn(), MofNCompleteColumn(),
+        console=console, transient=not console.is_terminal,
+    ) as bar:
+        tasks: dict[str, int] = {}
+
+        def progress(stage: str, done: int, total: int) -> None:
+            if stage not in tasks:
+                tasks[stage] = bar.add_task(stage, total=None)
+            bar.update(tasks[stage], completed=done, total=total or None)
+
+        report = raw_demo(
+            args.out, seed=args.seed, boards=args.boards or 12, bag_format=args.bag_format,
+            full_rate=args.full_rate, keep_bag=args.keep_bag, progress=progress,
+        )
+    _print_demo(report, console)
     return 0
 
 

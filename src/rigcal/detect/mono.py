@@ -48,7 +48,6 @@ from typing import NamedTuple
 
 import cv2
 import numpy as np
-from scipy.optimize import least_squares
 
 from rigcal.dataset import BoardGeometry
 from rigcal.detect.result import BoardDetection, DetectionFailure
@@ -87,7 +86,7 @@ class MonoDetectorConfig:
     """Gaussian blur of the full-resolution image the rim edges are located in."""
     min_hole_radius_px: float = 6.0
     max_hole_radius_px: float = 200.0
-    threshold_step: int = 12
+    threshold_step: int = 16
     """Grey-level step between the thresholds that segment dark holes."""
     min_contrast: float = 25.0
     """Least grey-level difference between the plate around a hole and the hole."""
@@ -259,8 +258,8 @@ def fit_board_mono(
         if rim_px.shape[0] < 12:
             return fail(PNP_FAILED, f"only {rim_px.shape[0]} rim edge points found on the holes")
         best = None
-        for T0, _ in poses:
-            fit = _fit_rims(T0, rim_px, rim_hole, obj, radius_m, camera)
+        for T0, _ in poses:  # choose the IPPE hypothesis on a third of the rim points
+            fit = _fit_rims(T0, rim_px[::3], rim_hole[::3], obj, radius_m, camera)
             if fit is not None and (best is None or fit[1] < best[1]):
                 best = fit
         if best is None:
@@ -339,11 +338,11 @@ def find_hole_candidates(
     found: list[HoleEllipse] = []
     step = int(config.threshold_step)
     for t in range(lo + step, hi, step):
-        binary = (small < t).astype(np.uint8)
+        _, binary = cv2.threshold(small, t - 1, 1, cv2.THRESH_BINARY_INV)
         contours, _ = cv2.findContours(binary, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
         for c in contours:
             n = c.shape[0]
-            if n < 2 * math.pi * rmin or n > 2 * math.pi * rmax * 2.5:
+            if n < 4 * rmin or n > 4 * math.pi * rmax:
                 continue
             pts = c.reshape(-1, 2)
             if pts[:, 0].min() <= 0 or pts[:, 1].min() <= 0:
@@ -566,7 +565,7 @@ class _EdgeImage(NamedTuple):
     img: np.ndarray  # float32 blurred grey crop
     x0: int
     y0: int
-    contrast: float  # least plate - hole grey of the four holes
+    min_peak: float  # least edge gradient [grey / px] that counts as a rim edge
 
 
 def _edge_image(
@@ -582,7 +581,11 @@ def _edge_image(
     crop = grey[y0:y1, x0:x1].astype(np.float32)
     if config.edge_sigma_px > 0.3:
         crop = cv2.GaussianBlur(crop, (0, 0), config.edge_sigma_px)
-    return _EdgeImage(crop, x0, y0, min(e.plate - e.hole for e in ellipses))
+    # a blurred step of height H peaks at H / (sqrt(2 pi) sigma) grey/px; accept a quarter of
+    # the weakest hole's contrast at that
+    contrast = min(e.plate - e.hole for e in ellipses)
+    sigma = math.hypot(config.edge_sigma_px, 1.0)
+    return _EdgeImage(crop, x0, y0, 0.25 * contrast / (math.sqrt(2 * math.pi) * sigma))
 
 
 def _edges_along(
@@ -609,9 +612,7 @@ def _edges_along(
         den = ym - 2 * y0 + yp
         off = np.where(interior & (den < 0), 0.5 * (ym - yp) / den, 0.0)
     off = np.clip(np.nan_to_num(off), -0.5, 0.5)
-    # a blurred step of height H peaks at ~H / (2.5 sigma) per px; ask for a quarter of that
-    min_peak = 0.25 * edge.contrast / (2.5 * max(1.0, 1.5 * 1.0))
-    ok = interior & np.isfinite(peak) & (peak >= min_peak)
+    ok = interior & np.isfinite(peak) & (peak >= edge.min_peak)
     pos = (k + off) * step
     return start + pos[:, None] * direction, ok
 
@@ -670,58 +671,92 @@ def _rim_residuals_px(
     T: np.ndarray, rays: np.ndarray, uv: np.ndarray, hole: np.ndarray, obj: np.ndarray,
     radius_m: float, camera: CameraModel,
 ) -> np.ndarray:
-    """(M,) signed distances [px] of rim points ``uv`` to the projected 3D rims under ``T``,
-    along the rim's image normal (first order); NaN where the ray misses the board plane."""
-    R, t = T[:3, :3], T[:3, 3]
-    nrm = R[:, 2]
+    """Signed distances [px] of rim points ``uv`` (M, 2) to the projected 3D rims under the
+    pose(s) ``T`` (4, 4) or (K, 4, 4), along the rim's image normal (first order): (M,) or
+    (K, M). NaN where the ray misses the board plane."""
+    Ts = np.asarray(T)[None] if np.ndim(T) == 2 else np.asarray(T)
+    K, M = Ts.shape[0], len(hole)
+    R, t = Ts[:, :3, :3], Ts[:, :3, 3]
+    nrm = R[:, :, 2]  # (K, 3) board normals in the camera frame
     with np.errstate(divide="ignore", invalid="ignore"):
-        s = (nrm @ t) / (rays @ nrm)
-    P_c = rays * s[:, None]
-    P_b = (P_c - t) @ R  # R^T (P - t)
-    d = P_b[:, :2] - obj[hole, :2]
-    rho = np.linalg.norm(d, axis=1)
+        s = np.sum(nrm * t, axis=1)[:, None] / (nrm @ rays.T)  # (K, M)
+    P_c = rays[None] * s[..., None]
+    P_b = np.matmul(P_c - t[:, None], R)  # R^T (P - t), row-wise
+    d = P_b[..., :2] - obj[hole, :2][None]
     with np.errstate(divide="ignore", invalid="ignore"):
-        u = d / rho[:, None]
-    Q_b = np.column_stack([obj[hole, :2] + radius_m * u, np.zeros(len(hole))])
-    Q_c = Q_b @ R.T + t
-    proj, _ = camera.project(Q_c)
-    J = camera.project_jacobian(Q_c)
-    tan_c = np.column_stack([-u[:, 1], u[:, 0], np.zeros(len(hole))]) @ R.T
-    tan = np.einsum("nij,nj->ni", J, tan_c)
+        u = d / np.linalg.norm(d, axis=-1, keepdims=True)
+    zeros = np.zeros((K, M, 1))
+    Q_b = np.concatenate([obj[hole, :2][None] + radius_m * u, zeros], axis=-1)
+    Rt = np.swapaxes(R, 1, 2)
+    Q_c = np.matmul(Q_b, Rt) + t[:, None]
+    tan_c = np.matmul(np.concatenate([-u[..., 1:], u[..., :1], zeros], axis=-1), Rt)
+    flat = Q_c.reshape(-1, 3)
+    proj, _ = camera.project(flat)
+    J = camera.project_jacobian(flat)
+    tan = np.sum(J * tan_c.reshape(-1, 1, 3), axis=2)
     with np.errstate(divide="ignore", invalid="ignore"):
         n_img = np.column_stack([tan[:, 1], -tan[:, 0]]) / np.linalg.norm(tan, axis=1)[:, None]
-    r = np.sum(n_img * (uv - proj), axis=1)
+    r = np.sum(n_img * (np.tile(uv, (K, 1)) - proj), axis=1).reshape(K, M)
     r[~(s > 0)] = np.nan
-    return r
+    return r[0] if np.ndim(T) == 2 else r
+
+
+_FD_STEP = 1e-7
+_ROBUST_SCALE_PX = 1.0
+
+
+def _robust_cost(r: np.ndarray) -> float:
+    """Soft-L1 cost of residuals [px] with scale ``_ROBUST_SCALE_PX`` (as scipy's "soft_l1")."""
+    z = (r / _ROBUST_SCALE_PX) ** 2
+    return float(np.sum(2.0 * (np.sqrt(1.0 + z) - 1.0))) * _ROBUST_SCALE_PX**2
 
 
 def _fit_rims(
     T0: np.ndarray, uv: np.ndarray, hole: np.ndarray, obj: np.ndarray, radius_m: float,
-    camera: CameraModel,
+    camera: CameraModel, max_iterations: int = 30,
 ) -> tuple[np.ndarray, float] | None:
-    """Refine T_camera_board (right perturbation, robust loss); returns (T, cost) or None."""
+    """Refine T_camera_board so the projected rims pass through ``uv``: robust (soft-L1)
+    Gauss-Newton on a right perturbation ``T <- T @ exp(xi)`` with a batched forward-difference
+    Jacobian and step halving. Returns (T, cost) or None if it fails."""
     rays = camera.unproject(uv)
     ok = np.all(np.isfinite(rays), axis=1)
     rays, uv, hole = rays[ok], uv[ok], hole[ok]
     if len(hole) < 12:
         return None
+    steps = np.vstack([np.zeros(6), _FD_STEP * np.eye(6)])
 
-    def fun(xi: np.ndarray) -> np.ndarray:
-        r = _rim_residuals_px(T0 @ se3_exp(xi), rays, uv, hole, obj, radius_m, camera)
-        return np.where(np.isfinite(r), r, 1e3)
+    def evaluate(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        r = _rim_residuals_px(T @ se3_exp(steps), rays, uv, hole, obj, radius_m, camera)
+        r = np.where(np.isfinite(r), r, 1e3)
+        return r[0], ((r[1:] - r[0]) / _FD_STEP).T
 
-    try:
-        res = least_squares(
-            fun, np.zeros(6), loss="soft_l1", f_scale=1.0, x_scale="jac", max_nfev=100
-        )
-    except (ValueError, np.linalg.LinAlgError):
+    T = np.array(T0, dtype=float)
+    r, J = evaluate(T)
+    cost = _robust_cost(r)
+    for _ in range(max_iterations):
+        w = 1.0 / np.sqrt(1.0 + (r / _ROBUST_SCALE_PX) ** 2)  # IRLS weights of soft-L1
+        H = J.T @ (J * w[:, None])
+        g = J.T @ (w * r)
+        try:
+            dx = -np.linalg.solve(H + 1e-9 * np.trace(H) * np.eye(6), g)
+        except np.linalg.LinAlgError:
+            return None
+        for _halving in range(10):
+            T_new = T @ se3_exp(dx)
+            r_new, J_new = evaluate(T_new)
+            cost_new = _robust_cost(r_new)
+            if cost_new <= cost:
+                break
+            dx = dx / 2.0
+        else:
+            break  # no descent: converged as far as the data allow
+        improvement = cost - cost_new
+        T, r, J, cost = T_new, r_new, J_new, cost_new
+        if np.linalg.norm(dx) < 1e-8 or improvement <= 1e-6 * max(cost, 1e-12):
+            break
+    if not np.all(np.isfinite(T)) or np.any((obj @ T[:3, :3].T + T[:3, 3])[:, 2] <= 0):
         return None
-    if not np.all(np.isfinite(res.x)):
-        return None
-    T = T0 @ se3_exp(res.x)
-    if np.any((obj @ T[:3, :3].T + T[:3, 3])[:, 2] <= 0):
-        return None
-    return T, float(res.cost)
+    return T, cost
 
 
 def _independent_hole_check(
@@ -749,18 +784,21 @@ def _independent_hole_check(
 
 
 def _fit_circle(q: np.ndarray) -> tuple[np.ndarray, float]:
-    """Least-squares circle (centre (2,), radius) through 2D points, robust to a few outliers."""
-    A = np.column_stack([2 * q, np.ones(len(q))])
-    b = np.sum(q * q, axis=1)
-    sol, *_ = np.linalg.lstsq(A, b, rcond=None)
-    c0 = sol[:2]
-    r0 = math.sqrt(max(sol[2] + c0 @ c0, 1e-12))
-
-    def fun(x: np.ndarray) -> np.ndarray:
-        return np.linalg.norm(q - x[:2], axis=1) - x[2]
-
-    res = least_squares(fun, np.array([c0[0], c0[1], r0]), loss="soft_l1", f_scale=0.002)
-    return res.x[:2], float(res.x[2])
+    """Circle (centre (2,), radius) through 2D points (algebraic fit, refitted once without
+    points farther than 3 robust sigmas from the first circle)."""
+    keep = np.ones(len(q), dtype=bool)
+    for _ in range(2):
+        A = np.column_stack([2 * q[keep], np.ones(int(keep.sum()))])
+        sol, *_ = np.linalg.lstsq(A, np.sum(q[keep] ** 2, axis=1), rcond=None)
+        c = sol[:2]
+        r = math.sqrt(max(sol[2] + c @ c, 1e-12))
+        d = np.abs(np.linalg.norm(q - c, axis=1) - r)
+        mad = float(np.median(d[keep])) * 1.4826
+        new_keep = d <= max(3.0 * mad, 1e-9)
+        if new_keep.sum() < 5:
+            break
+        keep = new_keep
+    return c, r
 
 
 def _side_error(centres: np.ndarray, board: BoardGeometry) -> float:

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -132,7 +133,7 @@ class RadtanCamera(CameraModel):
         """(5,) OpenCV distortion coefficients ``(k1, k2, p1, p2, k3)``."""
         return np.array(self.params[4:9])
 
-    @property
+    @cached_property
     def max_radius(self) -> float:
         """Normalised radius ``hypot(x/z, y/z)`` beyond which the radial distortion folds back."""
         k1, k2, _, _, k3 = self.params[4:9]

@@ -80,6 +80,9 @@ class MonoDetectorConfig:
 
     roi: tuple[int, int, int, int] | None = None
     """Optional search region ``(x, y, width, height)`` [px]; ``None`` searches the whole image."""
+    hole_polarity: str = "any"
+    """``"dark"``: the holes show a darker background than the plate; ``"bright"``: brighter;
+    ``"any"``: look for dark holes first, then for bright ones."""
     blur_sigma_px: float = 2.0
     """Gaussian blur before thresholding (full-resolution pixels)."""
     edge_sigma_px: float = 1.0
@@ -97,6 +100,11 @@ class MonoDetectorConfig:
     max_candidates: int = 40
     refine_rim: bool = True
     """Correct the ellipse-centre bias by fitting the projected 3D rims (recommended)."""
+    fit_hole_radius: bool = True
+    """Fit the rims' radius too (one for the four holes) instead of fixing it to
+    ``hole_diameter_m / 2``: the distance then follows from the hole spacing alone, so a
+    sub-pixel bias of the edges (blur on a curved rim, the plate's lit inner wall) or a hole cut
+    a little too wide does not scale the distance (recommended)."""
     rim_points_per_hole: int = 96
     max_reprojection_rms_px: float = 2.0
     """Detections whose rim fit RMS exceeds this fail with ``poor_fit``."""
@@ -123,6 +131,11 @@ class MonoDetectorConfig:
             raise ConfigError(
                 f"mono detector: min_hole_radius_px ({self.min_hole_radius_px}) must be below "
                 f"max_hole_radius_px ({self.max_hole_radius_px})"
+            )
+        if self.hole_polarity not in ("dark", "bright", "any"):
+            raise ConfigError(
+                f"mono detector: hole_polarity must be 'dark', 'bright' or 'any', got "
+                f"{self.hole_polarity!r}"
             )
         if self.rim_points_per_hole < 8:
             raise ConfigError(
@@ -227,19 +240,29 @@ def fit_board_mono(
             f"intrinsics are for {camera.width}x{camera.height} px",
         )
     grey = frame.image if frame.image.ndim == 2 else cv2.cvtColor(frame.image, cv2.COLOR_BGR2GRAY)
-    candidates = find_hole_candidates(grey, board, config)
-    if len(candidates) < 4:
+    polarities = ("dark", "bright") if config.hole_polarity == "any" else (config.hole_polarity,)
+    counts: dict[str, int] = {}
+    pattern = None
+    for polarity in polarities:
+        # the pipeline looks for dark holes in a bright plate: invert for bright holes
+        work = grey if polarity == "dark" else cv2.bitwise_not(grey)
+        candidates = find_hole_candidates(work, board, config)
+        counts[polarity] = len(candidates)
+        if len(candidates) >= 4:
+            pattern = find_square_pattern(candidates, board, config)
+            if pattern is not None:
+                break
+    seen = ", ".join(f"{n} {p}" for p, n in counts.items())
+    if pattern is None and max(counts.values()) < 4:
         return fail(
             TOO_FEW_HOLES,
-            f"found {len(candidates)} hole candidate(s), need 4 (radius "
-            f"{config.min_hole_radius_px:g}-{config.max_hole_radius_px:g} px, contrast >= "
-            f"{config.min_contrast:g})",
+            f"found {seen} hole candidate(s), need 4 (radius {config.min_hole_radius_px:g}-"
+            f"{config.max_hole_radius_px:g} px, contrast >= {config.min_contrast:g} grey levels)",
         )
-    pattern = find_square_pattern(candidates, board, config)
     if pattern is None:
         return fail(
             NO_SQUARE_PATTERN,
-            f"no 4 of the {len(candidates)} hole candidates form the board's square "
+            f"no 4 of the hole candidates ({seen}) form the board's square "
             f"(spacing {board.spacing_m:g} m, hole diameter {board.hole_diameter_m:g} m)",
         )
     ellipses = tuple(candidates[i] for i in pattern)
@@ -253,26 +276,30 @@ def fit_board_mono(
     radius_m = board.hole_diameter_m / 2.0
 
     if config.refine_rim:
-        edge = _edge_image(grey, centres_px, ellipses, config)
+        edge = _edge_image(work, centres_px, ellipses, config)
         rim_px, rim_hole = _rim_points_radial(edge, ellipses, config)
         if rim_px.shape[0] < 12:
             return fail(PNP_FAILED, f"only {rim_px.shape[0]} rim edge points found on the holes")
+        free = config.fit_hole_radius
         best = None
         for T0, _ in poses:  # choose the IPPE hypothesis on a third of the rim points
-            fit = _fit_rims(T0, rim_px[::3], rim_hole[::3], obj, radius_m, camera)
-            if fit is not None and (best is None or fit[1] < best[1]):
+            fit = _fit_rims(T0, radius_m, rim_px[::3], rim_hole[::3], obj, camera, free)
+            if fit is not None and (best is None or fit.cost < best.cost):
                 best = fit
         if best is None:
             return fail(PNP_FAILED, "the rim fit diverged for both IPPE pose hypotheses")
-        T = best[0]
-        rim_px, rim_hole = _rim_points_along_model(edge, T, obj, radius_m, camera, ellipses, config)
+        rim_px, rim_hole = _rim_points_along_model(
+            edge, best.T, obj, best.radius_m, camera, ellipses, config
+        )
         if rim_px.shape[0] < 12:
             return fail(PNP_FAILED, f"only {rim_px.shape[0]} rim edge points found on the holes")
-        fit = _fit_rims(T, rim_px, rim_hole, obj, radius_m, camera)
+        fit = _fit_rims(best.T, best.radius_m, rim_px, rim_hole, obj, camera, free)
         if fit is None:
             return fail(PNP_FAILED, "the rim fit diverged")
-        T = fit[0]
-        resid = _rim_residuals_px(T, camera.unproject(rim_px), rim_px, rim_hole, obj, radius_m, camera)
+        T, radius_m = fit.T, fit.radius_m
+        resid = _rim_residuals_px(
+            T, radius_m, camera.unproject(rim_px), rim_px, rim_hole, obj, camera
+        )
         keep = np.isfinite(resid)
         rms = float(np.sqrt(np.mean(resid[keep] ** 2))) if np.any(keep) else math.inf
     else:
@@ -298,7 +325,9 @@ def fit_board_mono(
         ),
         "centre_bias_px": float(np.max(np.linalg.norm(proj - centres_px, axis=1))),
         "rim_points": float(rim_px.shape[0]),
+        "hole_diameter_m": 2.0 * radius_m,
         "candidates": float(len(candidates)),
+        "bright_holes": float(polarity == "bright"),
     }
     if rim_px.shape[0]:
         side_err, diam_err = _independent_hole_check(T, rim_px, rim_hole, board, camera)
@@ -668,14 +697,16 @@ def _rim_points_along_model(
 
 # ---------------------------------------------------------------------------- rim fit
 def _rim_residuals_px(
-    T: np.ndarray, rays: np.ndarray, uv: np.ndarray, hole: np.ndarray, obj: np.ndarray,
-    radius_m: float, camera: CameraModel,
+    T: np.ndarray, radius_m: float | np.ndarray, rays: np.ndarray, uv: np.ndarray,
+    hole: np.ndarray, obj: np.ndarray, camera: CameraModel,
 ) -> np.ndarray:
-    """Signed distances [px] of rim points ``uv`` (M, 2) to the projected 3D rims under the
-    pose(s) ``T`` (4, 4) or (K, 4, 4), along the rim's image normal (first order): (M,) or
-    (K, M). NaN where the ray misses the board plane."""
+    """Signed distances [px] of rim points ``uv`` (M, 2) to the projected rims of circles of
+    ``radius_m`` around ``obj[hole]`` under the pose(s) ``T`` (4, 4) or (K, 4, 4) (radius
+    scalar or (K,)), along the rim's image normal (first order): (M,) or (K, M). NaN where the
+    ray (unit rays (M, 3) of ``uv``) misses the board plane."""
     Ts = np.asarray(T)[None] if np.ndim(T) == 2 else np.asarray(T)
     K, M = Ts.shape[0], len(hole)
+    rad = np.broadcast_to(np.asarray(radius_m, dtype=float), (K,))[:, None, None]
     R, t = Ts[:, :3, :3], Ts[:, :3, 3]
     nrm = R[:, :, 2]  # (K, 3) board normals in the camera frame
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -686,7 +717,7 @@ def _rim_residuals_px(
     with np.errstate(divide="ignore", invalid="ignore"):
         u = d / np.linalg.norm(d, axis=-1, keepdims=True)
     zeros = np.zeros((K, M, 1))
-    Q_b = np.concatenate([obj[hole, :2][None] + radius_m * u, zeros], axis=-1)
+    Q_b = np.concatenate([obj[hole, :2][None] + rad * u, zeros], axis=-1)
     Rt = np.swapaxes(R, 1, 2)
     Q_c = np.matmul(Q_b, Rt) + t[:, None]
     tan_c = np.matmul(np.concatenate([-u[..., 1:], u[..., :1], zeros], axis=-1), Rt)
@@ -711,39 +742,51 @@ def _robust_cost(r: np.ndarray) -> float:
     return float(np.sum(2.0 * (np.sqrt(1.0 + z) - 1.0))) * _ROBUST_SCALE_PX**2
 
 
+class _RimFit(NamedTuple):
+    T: np.ndarray  # T_camera_board (4, 4)
+    radius_m: float  # the rims' radius (fitted, or the board's when fixed)
+    cost: float  # robust cost at the solution
+
+
 def _fit_rims(
-    T0: np.ndarray, uv: np.ndarray, hole: np.ndarray, obj: np.ndarray, radius_m: float,
-    camera: CameraModel, max_iterations: int = 30,
-) -> tuple[np.ndarray, float] | None:
-    """Refine T_camera_board so the projected rims pass through ``uv``: robust (soft-L1)
-    Gauss-Newton on a right perturbation ``T <- T @ exp(xi)`` with a batched forward-difference
-    Jacobian and step halving. Returns (T, cost) or None if it fails."""
+    T0: np.ndarray, radius0_m: float, uv: np.ndarray, hole: np.ndarray, obj: np.ndarray,
+    camera: CameraModel, free_radius: bool, max_iterations: int = 30,
+) -> _RimFit | None:
+    """Refine T_camera_board (and, if ``free_radius``, the common rim radius) so the projected
+    rims pass through ``uv``: robust (soft-L1) Gauss-Newton on a right perturbation
+    ``T <- T @ exp(xi)`` and ``radius <- radius * exp(rho)`` with a batched forward-difference
+    Jacobian and step halving. Returns None if it fails."""
     rays = camera.unproject(uv)
     ok = np.all(np.isfinite(rays), axis=1)
     rays, uv, hole = rays[ok], uv[ok], hole[ok]
     if len(hole) < 12:
         return None
-    steps = np.vstack([np.zeros(6), _FD_STEP * np.eye(6)])
+    n = 7 if free_radius else 6
+    steps = np.vstack([np.zeros(n), _FD_STEP * np.eye(n)])
+    if not free_radius:
+        steps = np.column_stack([steps, np.zeros(n + 1)])
 
-    def evaluate(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        r = _rim_residuals_px(T @ se3_exp(steps), rays, uv, hole, obj, radius_m, camera)
+    def evaluate(T: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
+        Ts = T @ se3_exp(steps[:, :6])
+        r = _rim_residuals_px(Ts, radius * np.exp(steps[:, 6]), rays, uv, hole, obj, camera)
         r = np.where(np.isfinite(r), r, 1e3)
         return r[0], ((r[1:] - r[0]) / _FD_STEP).T
 
-    T = np.array(T0, dtype=float)
-    r, J = evaluate(T)
+    T, radius = np.array(T0, dtype=float), float(radius0_m)
+    r, J = evaluate(T, radius)
     cost = _robust_cost(r)
     for _ in range(max_iterations):
         w = 1.0 / np.sqrt(1.0 + (r / _ROBUST_SCALE_PX) ** 2)  # IRLS weights of soft-L1
         H = J.T @ (J * w[:, None])
         g = J.T @ (w * r)
         try:
-            dx = -np.linalg.solve(H + 1e-9 * np.trace(H) * np.eye(6), g)
+            dx = -np.linalg.solve(H + 1e-9 * np.trace(H) * np.eye(n), g)
         except np.linalg.LinAlgError:
             return None
         for _halving in range(10):
-            T_new = T @ se3_exp(dx)
-            r_new, J_new = evaluate(T_new)
+            T_new = T @ se3_exp(dx[:6])
+            radius_new = radius * math.exp(dx[6]) if free_radius else radius
+            r_new, J_new = evaluate(T_new, radius_new)
             cost_new = _robust_cost(r_new)
             if cost_new <= cost:
                 break
@@ -751,12 +794,12 @@ def _fit_rims(
         else:
             break  # no descent: converged as far as the data allow
         improvement = cost - cost_new
-        T, r, J, cost = T_new, r_new, J_new, cost_new
+        T, radius, r, J, cost = T_new, radius_new, r_new, J_new, cost_new
         if np.linalg.norm(dx) < 1e-8 or improvement <= 1e-6 * max(cost, 1e-12):
             break
     if not np.all(np.isfinite(T)) or np.any((obj @ T[:3, :3].T + T[:3, 3])[:, 2] <= 0):
         return None
-    return T, cost
+    return _RimFit(T, radius, cost)
 
 
 def _independent_hole_check(

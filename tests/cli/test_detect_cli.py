@@ -1,0 +1,118 @@
+"""`rigcal detect` and `rigcal calibrate --rig` on real bags written with rosbags."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rigcal.cli.main import run
+from rigcal.io.bag import write_recording
+from rigcal.recording import PointCloudFrame, RadarFrame
+
+NS = 1_000_000_000
+RIG = """
+sensors:
+  - {name: radar1, kind: radar, topic: /r1, detector: {rcs_min_dbsm: 5}}
+  - {name: radar2, kind: radar3d, topic: /r2, detector: {rcs_min_dbsm: 5}}
+"""
+
+
+def _radar_bag(path, placements=4, rcs=15.0):
+    rng = np.random.default_rng(0)
+    frames = {"/r1": [], "/r2": []}
+    t = 1.0
+    for k in range(placements):
+        target = np.array([4.0 + k, (-1) ** k * 0.5, 0.1])
+        for topic, sensor, rate, dim in (("/r1", "radar1", 13.0, 2), ("/r2", "radar2", 10.0, 3)):
+            for i in range(int(3 * rate)):
+                clutter = rng.uniform([1, -3, -0.5], [8, 3, 0.5], (5, 3))[:, :dim]
+                pts = np.vstack([target[:dim] + rng.normal(0, 0.02, dim), clutter])
+                r = np.concatenate([[rcs], rng.uniform(-10, 3, 5)])
+                frames[topic].append(RadarFrame(sensor, int((t + i / rate) * NS), pts, r))
+        t += 4.5
+    return write_recording(path, frames, "rosbag1")
+
+
+@pytest.fixture
+def rig(tmp_path):
+    p = tmp_path / "rig.yaml"
+    p.write_text(RIG)
+    return p
+
+
+def _one_error_line(capsys):
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("rigcal: error:"), err
+    return lines[0]
+
+
+def test_detect_writes_a_dataset_and_calibrate_reads_a_recording(tmp_path, rig, capsys):
+    bag = _radar_bag(tmp_path / "rec.bag")
+    assert run(["detect", str(bag), "--rig", str(rig), "--out", str(tmp_path / "det")]) == 0
+    out = capsys.readouterr().out
+    assert "4 board placements found" in out and "radar1" in out
+    assert (tmp_path / "det" / "rig.yaml").is_file() and (tmp_path / "det" / "radar2.csv").is_file()
+
+
+def test_corrupt_bag_is_one_line(tmp_path, rig, capsys):
+    bad = tmp_path / "bad.bag"
+    bad.write_bytes(b"not a bag at all")
+    assert run(["detect", str(bad), "--rig", str(rig), "--out", str(tmp_path / "o")]) == 1
+    assert "bad.bag" in _one_error_line(capsys)
+    assert not (tmp_path / "o").exists()
+
+
+def test_missing_topic_names_the_sensor(tmp_path, rig, capsys):
+    bag = _radar_bag(tmp_path / "rec.bag")
+    rig.write_text(RIG.replace("/r2", "/radar_front"))
+    assert run(["detect", str(bag), "--rig", str(rig), "--out", str(tmp_path / "o")]) == 1
+    line = _one_error_line(capsys)
+    assert "sensor 'radar2'" in line and "/radar_front" in line and "/r1" in line
+    assert not (tmp_path / "o").exists()
+
+
+def test_board_never_found_says_what_was_seen(tmp_path, rig, capsys):
+    bag = _radar_bag(tmp_path / "rec.bag", rcs=-20.0)  # the reflector is filtered out
+    assert run(["detect", str(bag), "--rig", str(rig), "--out", str(tmp_path / "o")]) == 1
+    line = _one_error_line(capsys)
+    assert "no board placement found" in line and "radar1: 0 detections" in line
+
+
+def test_cloud_without_xyz_names_the_topic(tmp_path, capsys):
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS1_NOETIC)
+    PointCloud2 = ts.types["sensor_msgs/msg/PointCloud2"]
+    PointField = ts.types["sensor_msgs/msg/PointField"]
+    Header = ts.types["std_msgs/msg/Header"]
+    Time = ts.types["builtin_interfaces/msg/Time"]
+    msg = PointCloud2(
+        header=Header(seq=0, stamp=Time(sec=1, nanosec=0), frame_id="lidar"),
+        height=1, width=2,
+        fields=[PointField(name="intensity", offset=0, datatype=7, count=1)],
+        is_bigendian=False, point_step=4, row_step=8,
+        data=np.zeros(8, dtype=np.uint8), is_dense=True,
+    )
+    bag = tmp_path / "noxyz.bag"
+    with Writer(bag) as w:
+        conn = w.add_connection("/points", "sensor_msgs/msg/PointCloud2", typestore=ts)
+        w.write(conn, NS, ts.serialize_ros1(msg, "sensor_msgs/msg/PointCloud2"))
+    rig = tmp_path / "rig.yaml"
+    rig.write_text("sensors:\n  - {name: lidar1, kind: lidar, topic: /points}\n")
+    assert run(["detect", str(bag), "--rig", str(rig), "--out", str(tmp_path / "o")]) == 1
+    line = _one_error_line(capsys)
+    assert "/points" in line and "intensity" in line and "x, y, z" in line, line
+
+
+def test_calibrate_with_rig_runs_detection_first(tmp_path, rig, capsys):
+    # two radars cannot be calibrated to each other in 2D, but a 2D and a 3D radar can
+    bag = _radar_bag(tmp_path / "rec.bag")
+    code = run(["calibrate", str(bag), "--rig", str(rig), "--out", str(tmp_path / "cal"), "--no-plot",
+                "--cv-folds", "0", "--reference", "radar2"])
+    out = capsys.readouterr()
+    assert code == 0, out.err
+    assert "4 board placements found" in out.out and "radar2-radar1" in out.out.replace("radar1-radar2", "radar2-radar1")
+    assert (tmp_path / "cal" / "calibration.yaml").is_file()

@@ -211,8 +211,18 @@ def run_detection(
         placements = match_placements(periods, min_sensors=rig.min_sensors)
     specs = [SensorSpec(s.name, s.kind, s.frame_id, s.max_elevation_rad) for s in rig.sensors]
     if not placements:
-        seen = ", ".join(f"{s}: {len(d)} detections in {frames[s]} frames" for s, d in ok.items())
-        raise InputError(f"{rig.source}: no board placement found in the recording ({seen})")
+        parts = []
+        for s, d in ok.items():
+            fails = Counter(r.reason for r in results[s] if isinstance(r, DetectionFailure))
+            why = ", ".join(f"{k}: {v}" for k, v in fails.most_common(2))
+            parts.append(f"{s}: {len(d)} detections in {frames[s]} frames" + (f" ({why})" if why else ""))
+        example = next(
+            (r for rs in results.values() for r in rs if isinstance(r, DetectionFailure) and r.detail), None
+        )
+        hint = f"; e.g. {example.sensor}: {example.detail}" if example is not None else ""
+        raise InputError(
+            f"{rig.source}: no board placement found in the recording ({'; '.join(parts)}){hint}"
+        )
     dataset = dataset_from_placements(placements, specs, rig.board, rig.reference, rig.source)
     stats = {}
     for s in rig.sensors:

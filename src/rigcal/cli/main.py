@@ -86,6 +86,44 @@ def _parser() -> argparse.ArgumentParser:
     t.add_argument("--rig", required=True, metavar="RIG_YAML", help="sensors, topics and detector settings")
     t.add_argument("--out", required=True, metavar="DIR", help="output folder for rig.yaml + CSVs")
 
+    u = sub.add_parser(
+        "urdf",
+        help="write calibrated sensor poses into a URDF",
+        description="Sets the origin of the joint carrying each calibrated sensor's link so that "
+        "the URDF's forward kinematics reproduce the calibration (fixed joints between the "
+        "parent frame and the sensor are taken into account). Only the changed origin values "
+        "differ from the input; a new file is written unless --in-place (then INPUT.bak is kept). "
+        "CALIBRATION: a rigcal calibration.yaml / absolute.yaml, or the original tool's YAML "
+        "{source, target, transform}.",
+        epilog="examples:\n  rigcal urdf robot.urdf results/calibration.yaml --out robot_calibrated.urdf\n"
+        "  rigcal urdf vehicle.urdf calibration.yaml --in-place",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    u.add_argument("urdf_in", metavar="INPUT.urdf")
+    u.add_argument("calibration", metavar="CALIBRATION")
+    out_group = u.add_mutually_exclusive_group(required=True)
+    out_group.add_argument("--out", metavar="OUTPUT.urdf")
+    out_group.add_argument("--in-place", action="store_true", help="overwrite INPUT.urdf (a backup is kept)")
+    u.add_argument("--body-link", help="link the poses are relative to (default: the calibration's parent frame)")
+    u.add_argument(
+        "--joint", action="append", default=[], metavar="LINK=JOINT",
+        help="update JOINT for the sensor LINK (default: the joint whose child is LINK)",
+    )
+
+    e = sub.add_parser(
+        "export",
+        help="export a calibration as static TF publishers (ROS1/ROS2) or YAML/JSON",
+        description="Writes every calibrated transform as ROS1 static_transform_publisher nodes "
+        "(x y z yaw pitch roll parent child), a ROS2 Python launch file, `ros2 run tf2_ros "
+        "static_transform_publisher` lines, or YAML/JSON 4x4 matrices, at full precision.",
+        epilog="examples:\n  rigcal export results/calibration.yaml --format ros2-launch --out calib.launch.py\n"
+        "  rigcal export absolute.yaml --format ros2-run",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    e.add_argument("calibration", metavar="CALIBRATION")
+    e.add_argument("--format", required=True, choices=["ros1-launch", "ros2-launch", "ros2-run", "yaml", "json"])
+    e.add_argument("--out", metavar="FILE", help="output file (default: stdout)")
+
     d = sub.add_parser(
         "demo",
         help="simulate a Prius-like rig, calibrate with all modes, compare with the truth",
@@ -263,6 +301,56 @@ def _cmd_detect(args, console) -> int:
     return 0
 
 
+def _cmd_urdf(args, console) -> int:
+    from rigcal.errors import InputError
+    from rigcal.io.calibration_files import read_calibration_transforms
+    from rigcal.io.urdf import write_urdf
+
+    cal = read_calibration_transforms(args.calibration)
+    joint_for = {}
+    for item in args.joint:
+        if "=" not in item:
+            raise InputError(f"--joint {item!r}: expected LINK=JOINT")
+        link, joint = item.split("=", 1)
+        joint_for[link] = joint
+    written = write_urdf(
+        args.urdf_in,
+        args.urdf_in if args.in_place else args.out,
+        dict(cal.transforms),
+        args.body_link or cal.parent_frame,
+        in_place=args.in_place,
+        joint_for=joint_for or None,
+    )
+    console.print(
+        f"updated {len(cal.transforms)} sensor(s) ({', '.join(cal.transforms)}) relative to "
+        f"'{args.body_link or cal.parent_frame}' -> {written.path}"
+        + (f" (backup {written.backup})" if written.backup else "")
+    )
+    return 0
+
+
+def _cmd_export(args, console) -> int:
+    from rigcal.io import tf_export
+    from rigcal.io.atomic import atomic_write_text
+    from rigcal.io.calibration_files import read_calibration_transforms
+
+    cal = read_calibration_transforms(args.calibration)
+    t, parent = dict(cal.transforms), cal.parent_frame
+    text = {
+        "ros1-launch": lambda: tf_export.ros1_launch_text(t, parent),
+        "ros2-launch": lambda: tf_export.ros2_launch_py_text(t, parent),
+        "ros2-run": lambda: "\n".join(tf_export.ros2_run_commands(t, parent)) + "\n",
+        "yaml": lambda: tf_export.yaml_text(t, parent),
+        "json": lambda: tf_export.json_text(t, parent),
+    }[args.format]()
+    if args.out:
+        atomic_write_text(args.out, text)
+        console.print(f"{len(t)} transform(s) from '{parent}' written to {args.out}")
+    else:
+        sys.stdout.write(text)
+    return 0
+
+
 def _print_demo(report, console) -> None:
     from rich.table import Table
 
@@ -345,6 +433,10 @@ def run(argv: Sequence[str] | None = None) -> int:
             return _cmd_calibrate(args, console)
         if args.command == "detect":
             return _cmd_detect(args, console)
+        if args.command == "urdf":
+            return _cmd_urdf(args, console)
+        if args.command == "export":
+            return _cmd_export(args, console)
         if args.command == "demo":
             return _cmd_demo(args, console)
     except RigcalError as exc:

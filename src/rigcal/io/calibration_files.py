@@ -1,0 +1,84 @@
+"""Any calibration file rigcal reads, as one value: a parent frame and ``T_parent_child`` per
+child frame. Kinds:
+
+* ``original``: the original tool's YAML ``{source, target, transform}`` with
+  ``p_target = transform @ p_source``, i.e. ``transform = T_target_source``; the parent is the
+  source frame and the child the target: ``T_source_target = inverse(transform)``;
+* ``relative``: a rigcal ``calibration.yaml`` (``reference``, ``sensors.<name>.frame_id`` and
+  ``T_reference_sensor``); the parent is the reference sensor's frame;
+* ``absolute``: a rigcal ``absolute.yaml`` (``body_frame`` and ``sensors.<name>.T_body_sensor``).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from rigcal.errors import InputError
+from rigcal.geometry.se3 import invert
+from rigcal.io._text import load_yaml, read_text
+
+
+@dataclass(frozen=True, eq=False)
+class CalibrationTransforms:
+    kind: str
+    parent_frame: str
+    transforms: Mapping[str, np.ndarray]  # child frame -> T_parent_child (4, 4)
+    source: str = ""
+
+
+def _matrix(value: Any, where: str) -> np.ndarray:
+    try:
+        T = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise InputError(f"{where}: expected a 4x4 matrix of numbers") from None
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+        raise InputError(f"{where}: expected a finite 4x4 matrix, got shape {T.shape}")
+    R = T[:3, :3]
+    if not np.allclose(R.T @ R, np.eye(3), atol=1e-5) or np.linalg.det(R) <= 0 or not np.allclose(T[3], [0, 0, 0, 1]):
+        raise InputError(f"{where}: not a rigid transform (rotation block not orthonormal or last row not 0 0 0 1)")
+    return T
+
+
+def parse_calibration_transforms(text: str, source: str) -> CalibrationTransforms:
+    data = load_yaml(text, source)
+    if not isinstance(data, dict):
+        raise InputError(f"{source}: expected a calibration mapping")
+    if {"source", "target", "transform"} <= set(data):
+        T = _matrix(data["transform"], f"{source}: transform")
+        return CalibrationTransforms("original", str(data["source"]), {str(data["target"]): invert(T)}, source)
+    sensors = data.get("sensors")
+    if not isinstance(sensors, dict) or not sensors:
+        raise InputError(
+            f"{source}: not a calibration file: expected {{source, target, transform}} (original tool), "
+            "or 'sensors' with T_reference_sensor (rigcal calibration.yaml) or T_body_sensor (absolute.yaml)"
+        )
+    if "body_frame" in data:
+        parent = str(data["body_frame"])
+        out = {}
+        for name, entry in sensors.items():
+            if not isinstance(entry, dict) or "T_body_sensor" not in entry:
+                raise InputError(f"{source}: sensors.{name}: missing T_body_sensor")
+            out[str(entry.get("frame_id", name))] = _matrix(entry["T_body_sensor"], f"{source}: sensors.{name}.T_body_sensor")
+        return CalibrationTransforms("absolute", parent, out, source)
+    ref = data.get("reference")
+    if ref not in sensors:
+        raise InputError(f"{source}: reference '{ref}' is not one of the sensors {list(sensors)}")
+    parent = str(sensors[ref].get("frame_id", ref))
+    out = {}
+    for name, entry in sensors.items():
+        if name == ref:
+            continue
+        if not isinstance(entry, dict) or "T_reference_sensor" not in entry:
+            raise InputError(f"{source}: sensors.{name}: missing T_reference_sensor")
+        out[str(entry.get("frame_id", name))] = _matrix(entry["T_reference_sensor"], f"{source}: sensors.{name}.T_reference_sensor")
+    return CalibrationTransforms("relative", parent, out, source)
+
+
+def read_calibration_transforms(path: str | os.PathLike[str]) -> CalibrationTransforms:
+    p = Path(path)
+    return parse_calibration_transforms(read_text(p, "calibration file"), str(p))

@@ -5,8 +5,10 @@ Every residual here has the same shape: a point ``p`` fixed in frame A is seen b
     x = T_W_B^-1 @ T_W_A @ p          (the point in B's frame)
     r = (h(x) - z) / sigma            (whitened)
 
-``h`` is the identity for 3D sensors (lidar, stereo camera, 3D radar) and the 2D radar
-projection (range, azimuth; elevation dropped - paper eq. 3) for 2D radars. Poses are
+``h`` is the identity for 3D sensors (lidar, stereo camera, 3D radar), the 2D radar
+projection (range, azimuth; elevation dropped - paper eq. 3) for 2D radars, and a camera
+model's projection to pixels for cameras (points outside the model's domain, e.g. behind the
+camera, give a zero residual and no gradient). Poses are
 perturbed on the right, ``T <- T @ exp(xi)`` with ``xi = (omega, v)``, so Jacobians are
 with respect to (omega, v) expressed in each pose's own frame.
 
@@ -23,6 +25,7 @@ from rigcal.sensors.radar import elevation, elevation_jacobian, project_2d, proj
 
 MODEL_POINT = "point3d"
 MODEL_RADAR2D = "radar2d"
+MODEL_CAMERA = "camera"  # pixels through a rigcal.sensors.camera model (paper 001, eq. 3)
 
 
 def point_in_observer(
@@ -54,6 +57,7 @@ def observation_residuals(
     measured: np.ndarray,
     sigma: np.ndarray,
     model: str,
+    camera=None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Whitened residuals (n, d) and Jacobians (n, d, 6) for frame A and observer B."""
     x, JA, JB = point_in_observer(T_W_A, T_W_B, points_A)
@@ -61,6 +65,12 @@ def observation_residuals(
         h, H = x, None
     elif model == MODEL_RADAR2D:
         h, H = project_2d(x), project_2d_jacobian(x)
+    elif model == MODEL_CAMERA:
+        uv, _ = camera.project(x)
+        H = camera.project_jacobian(x)
+        ok = np.all(np.isfinite(uv), axis=1) & np.all(np.isfinite(H.reshape(len(x), -1)), axis=1)
+        h = np.where(ok[:, None], uv, measured)
+        H = np.where(ok[:, None, None], H, 0.0)
     else:  # pragma: no cover - guarded where problems are built
         raise ValueError(f"unknown measurement model {model!r}")
     inv_sigma = 1.0 / sigma

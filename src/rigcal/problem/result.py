@@ -68,6 +68,8 @@ class CalibrationResult:
     board_poses: dict[int, np.ndarray] = field(default_factory=dict)
     cross_validation_rmse_m: dict[str, float] = field(default_factory=dict)
     solve_time_s: float = 0.0
+    #: camera pairs' reprojection RMS [px] (motion-capture calibration: "robot-camera1")
+    reprojection_px: dict[str, float] = field(default_factory=dict)
 
     def T(self, to: str, frm: str) -> np.ndarray:
         """``T_to_from`` between two calibrated sensors (or the reference)."""
@@ -100,6 +102,7 @@ class CalibrationResult:
                 for name, est in self.sensors.items()
             },
             "rmse_m": {k: f(v) for k, v in self.rmse_m.items()},
+            "reprojection_px": {k: f(v) for k, v in self.reprojection_px.items()},
             "cross_validation_rmse_m": {k: f(v) for k, v in self.cross_validation_rmse_m.items()},
             "per_board_m": {
                 pair: {int(k): f(v) for k, v in errs.items()} for pair, errs in self.per_board_m.items()

@@ -23,6 +23,7 @@ import scipy.sparse.linalg
 from rigcal.errors import ConfigError
 from rigcal.geometry.se3 import se3_exp
 from rigcal.problem.residuals import (
+    MODEL_CAMERA,
     MODEL_POINT,
     MODEL_RADAR2D,
     elevation_limit_residuals,
@@ -72,10 +73,13 @@ class Observations:
     measured: np.ndarray
     sigma: np.ndarray
     board: np.ndarray
+    camera: object | None = None  # a rigcal.sensors.camera model, for MODEL_CAMERA
 
     def __post_init__(self) -> None:
-        if self.model not in (MODEL_POINT, MODEL_RADAR2D):
+        if self.model not in (MODEL_POINT, MODEL_RADAR2D, MODEL_CAMERA):
             raise ConfigError(f"unknown measurement model {self.model!r}")
+        if self.model == MODEL_CAMERA and self.camera is None:
+            raise ConfigError(f"observations '{self.label}': a camera model is needed for pixels")
         n = len(self.frame)
         d = 3 if self.model == MODEL_POINT else 2
         for name, arr, shape in (
@@ -309,7 +313,7 @@ def _evaluate(problem: Problem, layout: _Layout, T: np.ndarray, loss: str, c: fl
             raw.append(np.zeros((0, batch.dim)))
             continue
         r, JA, JB = observation_residuals(
-            T[ia], T[ib], batch.points, batch.measured, batch.sigma, batch.model
+            T[ia], T[ib], batch.points, batch.measured, batch.sigma, batch.model, batch.camera
         )
         raw.append(r)
         s = np.sum(r * r, axis=1)

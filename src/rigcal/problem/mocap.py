@@ -1,0 +1,278 @@
+"""Motion-capture calibration (Charron, Waslander, Narasimhan) as a configuration of the problem.
+
+A motion-capture system (MCS) tracks the robot (``T_M_R``) and every target (``T_M_T``), so each
+target observation comes with the target's pose in the robot frame, ``T_R_T = T_M_R^-1 T_M_T``,
+known to sub-millimetre accuracy. Every sensor is calibrated to the robot frame even when no
+two sensors see the same target:
+
+* lidar (eq. 2): ``e = P_L - T_R_L^-1 T_R_T P_T`` for measured keypoints ``P_L``;
+* camera (eq. 3): ``e = rho - pi(T_R_C^-1 T_R_T P_T)`` for measured pixels ``rho``.
+
+Each observation is a pose block ``T_R_T`` held at its MCS value; sensors are free. Targets
+without distinct keypoints (a cylinder) give measured points with unknown correspondences: they
+are matched to the target's template points by nearest neighbours after aligning centroids
+(under the current calibration), the problem is solved, and correspondences are re-estimated
+until the calibration stops changing (paper III-D).
+
+Sensors that see the same target at the same time can add direct sensor-to-sensor terms, and
+circle-board placements (Domhof et al.) can join the same problem (:func:`board_batches`).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Mapping, Sequence
+
+import numpy as np
+from scipy.spatial import cKDTree
+from threadpoolctl import threadpool_limits
+
+from rigcal.dataset import SensorKind
+from rigcal.errors import ConfigError, ConvergenceError, InputError
+from rigcal.geometry.se3 import invert
+from rigcal.geometry.so3 import so3_log
+from rigcal.problem.residuals import MODEL_CAMERA, MODEL_POINT
+from rigcal.problem.result import CalibrationResult, SensorEstimate
+from rigcal.problem.solver import Observations, PoseBlock, Problem, solve
+from rigcal.problem.uncertainty import pose_std
+
+ROBOT = "robot"
+
+
+@dataclass(frozen=True, eq=False)
+class MocapSensor:
+    """A sensor to calibrate to the robot frame: ``kind`` lidar (3D keypoints, ``sigma`` in m)
+    or camera (pixels through ``camera``, a :mod:`rigcal.sensors.camera` model; ``sigma`` in px)."""
+
+    name: str
+    kind: SensorKind
+    camera: object | None = None
+    sigma: float = 0.01
+    frame_id: str = ""
+
+    def __post_init__(self) -> None:
+        if self.kind not in (SensorKind.LIDAR, SensorKind.CAMERA):
+            raise ConfigError(f"sensor '{self.name}': mocap calibration takes lidars and cameras, not {self.kind.value}")
+        if self.kind == SensorKind.CAMERA and self.camera is None:
+            raise ConfigError(f"sensor '{self.name}': a camera needs a camera model (intrinsics)")
+        if not self.sigma > 0:
+            raise ConfigError(f"sensor '{self.name}': sigma must be > 0")
+        if not self.frame_id:
+            object.__setattr__(self, "frame_id", self.name)
+
+
+@dataclass(frozen=True, eq=False)
+class TargetObservation:
+    """One sensor's observation of one target at one time.
+
+    ``T_robot_target`` (4, 4): the target's pose in the robot frame from the MCS at ``t_ns``.
+    ``measured``: (n, 3) points in the sensor frame [m] (lidar) or (n, 2) pixels (camera).
+    ``keypoints_target``: (n, 3) the corresponding points in the target frame when known (e.g.
+    diamond corners, checkerboard corners, in the same order); None when correspondences must be
+    estimated against the target's template points.
+    """
+
+    sensor: str
+    target: str
+    t_ns: int
+    T_robot_target: np.ndarray
+    measured: np.ndarray
+    keypoints_target: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        T = np.array(self.T_robot_target, dtype=float)
+        m = np.array(self.measured, dtype=float)
+        if T.shape != (4, 4):
+            raise InputError(f"observation of '{self.target}' by '{self.sensor}': T_robot_target must be 4x4")
+        if m.ndim != 2 or m.shape[1] not in (2, 3) or m.shape[0] == 0:
+            raise InputError(
+                f"observation of '{self.target}' by '{self.sensor}' at {self.t_ns}: measured must be "
+                f"(n, 3) points or (n, 2) pixels with n >= 1, got {m.shape}"
+            )
+        if self.keypoints_target is not None:
+            k = np.array(self.keypoints_target, dtype=float)
+            if k.shape != (m.shape[0], 3):
+                raise InputError(
+                    f"observation of '{self.target}' by '{self.sensor}': {m.shape[0]} measurements but "
+                    f"keypoints of shape {k.shape}"
+                )
+            k.setflags(write=False)
+            object.__setattr__(self, "keypoints_target", k)
+        for a in (T, m):
+            a.setflags(write=False)
+        object.__setattr__(self, "T_robot_target", T)
+        object.__setattr__(self, "measured", m)
+
+
+@dataclass(frozen=True)
+class MocapOptions:
+    loss: str = "huber"
+    loss_scale: float = 3.0  # in units of sigma
+    max_correspondence_iterations: int = 30
+    translation_tolerance_m: float = 1e-6
+    rotation_tolerance_rad: float = 1e-7
+    #: drop correspondences farther than this many sigma after alignment (0 = keep all)
+    max_correspondence_sigma: float = 0.0
+
+
+def _check(sensors: Sequence[MocapSensor], observations: Sequence[TargetObservation], initial, templates):
+    names = {s.name: s for s in sensors}
+    if len(names) != len(sensors):
+        raise ConfigError("duplicate sensor names")
+    seen = {s: 0 for s in names}
+    for o in observations:
+        if o.sensor not in names:
+            raise InputError(f"observation by unknown sensor '{o.sensor}' (sensors: {', '.join(names)})")
+        s = names[o.sensor]
+        dim = 2 if s.kind == SensorKind.CAMERA else 3
+        if o.measured.shape[1] != dim:
+            raise InputError(
+                f"observation of '{o.target}' by '{o.sensor}': a {s.kind.value} measures "
+                f"{'pixels (n, 2)' if dim == 2 else 'points (n, 3)'}, got {o.measured.shape}"
+            )
+        if o.keypoints_target is None and o.target not in templates:
+            raise InputError(
+                f"target '{o.target}' has no keypoint correspondences and no template points "
+                f"(templates: {', '.join(templates) or 'none'})"
+            )
+        seen[o.sensor] += 1
+    missing = [s for s, n in seen.items() if n == 0]
+    if missing:
+        raise InputError(f"sensor(s) {missing} never saw a target: nothing to calibrate them with")
+    for s in names:
+        if s not in initial:
+            raise InputError(f"no initial calibration T_robot_sensor for '{s}'")
+
+
+def _correspond(obs: TargetObservation, sensor: MocapSensor, T_R_S: np.ndarray, template: np.ndarray, options: MocapOptions):
+    """Target-frame template points matched to the measured points (centroid-aligned NNS)."""
+    T_S_T = invert(T_R_S) @ obs.T_robot_target
+    X = template @ T_S_T[:3, :3].T + T_S_T[:3, 3]
+    m = obs.measured
+    if sensor.kind == SensorKind.CAMERA:
+        uv, valid = sensor.camera.project(X)
+        ok = np.all(np.isfinite(uv), axis=1)
+        # prefer points that face the camera when a surface normal is not known: all projected
+        cand, idx = uv[ok], np.flatnonzero(ok)
+        if cand.shape[0] == 0:
+            return None, None
+    else:
+        cand, idx = X, np.arange(len(X))
+    aligned = cand - cand.mean(axis=0) + m.mean(axis=0)
+    d, j = cKDTree(aligned).query(m)
+    keep = np.ones(len(m), dtype=bool)
+    if options.max_correspondence_sigma > 0:
+        keep = d <= options.max_correspondence_sigma * sensor.sigma
+    return template[idx[j]][keep], keep
+
+
+def _build(sensors, observations, poses, templates, options):
+    blocks = [PoseBlock(s.name, poses[s.name]) for s in sensors]
+    per_sensor: dict[str, dict[str, list]] = {s.name: {"frame": [], "points": [], "measured": [], "board": []} for s in sensors}
+    names = {s.name: s for s in sensors}
+    for i, o in enumerate(observations):
+        block = f"obs:{i}"
+        blocks.append(PoseBlock(block, o.T_robot_target, (False,) * 6))
+        if o.keypoints_target is not None:
+            pts, meas = o.keypoints_target, o.measured
+        else:
+            pts, keep = _correspond(o, names[o.sensor], poses[o.sensor], templates[o.target], options)
+            if pts is None or len(pts) == 0:
+                continue
+            meas = o.measured[keep]
+        d = per_sensor[o.sensor]
+        d["frame"] += [block] * len(pts)
+        d["points"].append(pts)
+        d["measured"].append(meas)
+        d["board"].append(np.full(len(pts), i))
+    batches = []
+    for s in sensors:
+        d = per_sensor[s.name]
+        if not d["frame"]:
+            continue
+        meas = np.concatenate(d["measured"])
+        batches.append(
+            Observations(
+                label=f"{ROBOT}-{s.name}",
+                sensor=s.name,
+                model=MODEL_CAMERA if s.kind == SensorKind.CAMERA else MODEL_POINT,
+                frame=tuple(d["frame"]),
+                observer=(s.name,) * len(d["frame"]),
+                points=np.concatenate(d["points"]),
+                measured=meas,
+                sigma=np.full(meas.shape, s.sigma),
+                board=np.concatenate(d["board"]),
+                camera=s.camera,
+            )
+        )
+    return Problem(tuple(blocks), tuple(batches))
+
+
+def calibrate_mocap(
+    sensors: Sequence[MocapSensor],
+    observations: Sequence[TargetObservation],
+    initial: Mapping[str, np.ndarray],
+    templates: Mapping[str, np.ndarray] | None = None,
+    options: MocapOptions = MocapOptions(),
+) -> CalibrationResult:
+    """``T_robot_sensor`` for every sensor from MCS-tracked target observations.
+
+    ``initial``: ``T_robot_sensor`` guesses (e.g. CAD or TF). ``templates``: target name ->
+    (K, 3) template points in the target frame, for observations without correspondences.
+    Raises ConvergenceError when the correspondence iterations do not settle.
+    """
+    templates = {k: np.asarray(v, dtype=float) for k, v in (templates or {}).items()}
+    _check(sensors, observations, initial, templates)
+    t0 = time.perf_counter()
+    poses = {s.name: np.asarray(initial[s.name], dtype=float) for s in sensors}
+    needs_iterations = any(o.keypoints_target is None for o in observations)
+    sol = None
+    with threadpool_limits(limits=1):
+        for it in range(1, options.max_correspondence_iterations + 1):
+            prob = _build(sensors, observations, poses, templates, options)
+            sol = solve(prob, loss=options.loss, loss_scale=options.loss_scale)
+            if not sol.converged:
+                raise ConvergenceError(f"mocap calibration did not converge: {sol.status}")
+            change_t = max(float(np.linalg.norm(sol.poses[s.name][:3, 3] - poses[s.name][:3, 3])) for s in sensors)
+            change_r = max(
+                float(np.linalg.norm(so3_log(poses[s.name][:3, :3].T @ sol.poses[s.name][:3, :3]))) for s in sensors
+            )
+            poses = {s.name: sol.poses[s.name] for s in sensors}
+            if not needs_iterations or (
+                change_t <= options.translation_tolerance_m and change_r <= options.rotation_tolerance_rad
+            ):
+                break
+        else:
+            raise ConvergenceError(
+                f"mocap calibration: correspondences still changing after "
+                f"{options.max_correspondence_iterations} iterations"
+            )
+    assert sol is not None
+    estimates, rmse, reproj = {}, {}, {}
+    by_sensor = {b.sensor: (b, r) for b, r in zip(prob.observations, sol.residuals)}
+    for s in sensors:
+        cov = sol.pose_covariance(s.name)
+        estimates[s.name] = SensorEstimate(
+            name=s.name, kind=s.kind, frame_id=s.frame_id, T_reference_sensor=poses[s.name].copy(),
+            covariance=cov, std=pose_std(poses[s.name], cov),
+        )
+        b, r = by_sensor[s.name]
+        e = np.linalg.norm(r * b.sigma, axis=1)
+        value = float(np.sqrt(np.mean(e**2)))
+        (reproj if s.kind == SensorKind.CAMERA else rmse)[f"{ROBOT}-{s.name}"] = value
+    return CalibrationResult(
+        mode="mocap",
+        reference=ROBOT,
+        converged=True,
+        sensors=estimates,
+        rmse_m=rmse,
+        per_board_m={},
+        outliers={},
+        iterations=sol.iterations,
+        cost=sol.cost,
+        num_boards=len(observations),
+        noise_iterations=it,
+        solve_time_s=time.perf_counter() - t0,
+        reprojection_px=reproj,
+    )

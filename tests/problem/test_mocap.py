@@ -1,0 +1,154 @@
+"""Motion-capture calibration on a non-overlapping rig with known truth (keypoint level)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rigcal.dataset import SensorKind
+from rigcal.errors import ConfigError, InputError
+from rigcal.geometry.se3 import from_rt, invert, se3_exp
+from rigcal.geometry.so3 import matrix_from_rpy, so3_log
+from rigcal.problem.mocap import MocapOptions, MocapSensor, TargetObservation, calibrate_mocap
+from rigcal.sensors.camera.radtan import RadtanCamera
+
+R_OPT = np.array([[0, 0, 1], [-1, 0, 0], [0, -1, 0]], float).T  # optical frame in a body x-fwd frame
+
+
+def _pose(xyz, rpy_deg, optical=False):
+    R = matrix_from_rpy(np.radians(rpy_deg))
+    return from_rt(R @ R_OPT if optical else R, xyz)
+
+
+def _diamond():
+    h = 0.5
+    corners = np.array([[0, h, 0], [h, 0, 0], [0, -h, 0], [-h, 0, 0]], float)  # lidar keypoints
+    g = np.arange(-3, 4) * 0.06
+    inner = np.array([[x, y, 0.0] for y in g[:6] for x in g[:5]])  # checkerboard corners
+    return corners, inner
+
+
+def _cylinder(rng, n=4000, r=0.15, h=1.0):
+    a = rng.uniform(0, 2 * np.pi, n)
+    z = rng.uniform(-h / 2, h / 2, n)
+    return np.column_stack([r * np.cos(a), r * np.sin(a), z])
+
+
+def _camera():
+    return RadtanCamera(1280, 960, np.array([900.0, 900.0, 639.5, 479.5, -0.05, 0.01, 0.0, 0.0, 0.0]))
+
+
+TRUTH = {
+    "lidar1": _pose([0.3, 0.0, 0.5], [0.5, -1.0, 2.0]),  # looks forward
+    "camera1": _pose([0.0, 0.25, 0.4], [0.0, 0.0, 90.0], optical=True),  # looks left
+    "camera2": _pose([0.0, -0.25, 0.4], [0.0, 5.0, -90.0], optical=True),  # looks right
+}
+
+
+def _observations(rng, n_each, noise_px=0.2, noise_m=0.002, cylinder_for=()):
+    cam = _camera()
+    corners, inner = _diamond()
+    cyl = _cylinder(rng)
+    obs = []
+    for name, T_R_S in TRUTH.items():
+        fwd = T_R_S[:3, 2] if name.startswith("camera") else T_R_S[:3, 0]
+        for k in range(n_each):
+            d = rng.uniform(2.0, 4.0)
+            centre = T_R_S[:3, 3] + d * fwd + rng.uniform(-0.4, 0.4, 3) * [1, 1, 0.5]
+            # target z axis toward the sensor, with tilt; make its frame
+            z = -fwd + rng.normal(0, 0.25, 3)
+            z /= np.linalg.norm(z)
+            x = np.cross([0, 0, 1], z)
+            x /= np.linalg.norm(x)
+            R = np.column_stack([x, np.cross(z, x), z]) @ matrix_from_rpy(np.radians([0, 0, rng.uniform(-30, 30)]))
+            T_R_T = from_rt(R, centre)
+            T_S_T = invert(T_R_S) @ T_R_T
+            t = int(k * 1e8)
+            if name in cylinder_for:
+                pts = cyl[rng.choice(len(cyl), 300, replace=False)]
+                P = pts @ T_S_T[:3, :3].T + T_S_T[:3, 3]
+                if name.startswith("camera"):
+                    uv, ok = cam.project(P)
+                    obs.append(TargetObservation(name, "cylinder", t, T_R_T, uv[ok] + rng.normal(0, noise_px, (ok.sum(), 2))))
+                else:
+                    obs.append(TargetObservation(name, "cylinder", t, T_R_T, P + rng.normal(0, noise_m, P.shape)))
+            elif name.startswith("camera"):
+                uv, ok = cam.project(inner @ T_S_T[:3, :3].T + T_S_T[:3, 3])
+                assert ok.all()
+                obs.append(TargetObservation(name, "diamond", t, T_R_T, uv + rng.normal(0, noise_px, uv.shape), inner))
+            else:
+                P = corners @ T_S_T[:3, :3].T + T_S_T[:3, 3]
+                obs.append(TargetObservation(name, "diamond", t, T_R_T, P + rng.normal(0, noise_m, P.shape), corners))
+    return obs
+
+
+def _sensors(cam_sigma=0.2, lidar_sigma=0.002):
+    return [
+        MocapSensor("lidar1", SensorKind.LIDAR, sigma=lidar_sigma),
+        MocapSensor("camera1", SensorKind.CAMERA, _camera(), sigma=cam_sigma),
+        MocapSensor("camera2", SensorKind.CAMERA, _camera(), sigma=cam_sigma),
+    ]
+
+
+def _perturbed(rng):
+    out = {}
+    for k, T in TRUTH.items():
+        xi = np.concatenate([np.radians(rng.uniform(-5, 5, 3)), rng.uniform(-0.03, 0.03, 3)])
+        out[k] = T @ se3_exp(xi)
+    return out
+
+
+def _errors(result):
+    out = {}
+    for k, T in TRUTH.items():
+        E = result.sensors[k].T_reference_sensor
+        out[k] = (np.linalg.norm(E[:3, 3] - T[:3, 3]), np.degrees(np.linalg.norm(so3_log(T[:3, :3].T @ E[:3, :3]))))
+    return out
+
+
+def test_non_overlapping_rig_with_diamond_targets_noise_free():
+    rng = np.random.default_rng(0)
+    obs = _observations(rng, 5, noise_px=0.0, noise_m=0.0)
+    r = calibrate_mocap(_sensors(), obs, _perturbed(rng))
+    for name, (t, a) in _errors(r).items():
+        assert t < 1e-6 and a < 1e-5, (name, t, a)
+    assert r.reference == "robot" and set(r.reprojection_px) == {"robot-camera1", "robot-camera2"}
+
+
+def test_non_overlapping_rig_with_noise_within_reported_uncertainty():
+    rng = np.random.default_rng(1)
+    obs = _observations(rng, 15)
+    r = calibrate_mocap(_sensors(), obs, _perturbed(rng))
+    for name, (t, a) in _errors(r).items():
+        s = r.sensors[name].std
+        t_std = np.linalg.norm([s["x_m"], s["y_m"], s["z_m"]])
+        assert t < 4 * t_std + 1e-4, (name, t, t_std)
+        assert t < 0.005 and a < 0.1, (name, t, a)
+    assert r.reprojection_px["robot-camera1"] == pytest.approx(0.2 * np.sqrt(2), rel=0.3)
+
+
+def test_cylinder_targets_need_correspondence_iterations_and_converge():
+    rng = np.random.default_rng(2)
+    obs = _observations(rng, 30, noise_m=0.001, noise_px=0.2, cylinder_for=("lidar1",))
+    cyl = _cylinder(np.random.default_rng(99), n=20000)
+    r = calibrate_mocap(_sensors(), obs, _perturbed(rng), templates={"cylinder": cyl})
+    t, a = _errors(r)["lidar1"]
+    assert r.noise_iterations > 1  # correspondences were re-estimated
+    assert t < 0.01 and a < 0.2, (t, a)
+
+
+def test_bad_input_is_refused():
+    rng = np.random.default_rng(3)
+    obs = _observations(rng, 2)
+    with pytest.raises(InputError, match="never saw a target"):
+        calibrate_mocap(_sensors() + [MocapSensor("lidar2", SensorKind.LIDAR)], obs, {**_perturbed(rng), "lidar2": np.eye(4)})
+    with pytest.raises(InputError, match="no initial calibration"):
+        calibrate_mocap(_sensors(), obs, {"lidar1": np.eye(4)})
+    with pytest.raises(InputError, match="no keypoint correspondences and no template"):
+        bad = obs + [TargetObservation("lidar1", "cylinder", 0, np.eye(4), np.ones((5, 3)))]
+        calibrate_mocap(_sensors(), bad, _perturbed(rng))
+    with pytest.raises(InputError, match="measures pixels"):
+        bad = obs + [TargetObservation("camera1", "diamond", 0, np.eye(4), np.ones((4, 3)), np.ones((4, 3)))]
+        calibrate_mocap(_sensors(), bad, _perturbed(rng))
+    with pytest.raises(ConfigError, match="needs a camera model"):
+        MocapSensor("c", SensorKind.CAMERA)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from rigcal.errors import InputError
 from rigcal.geometry.so3 import hat, so3_exp, so3_log
 
 
@@ -65,3 +66,21 @@ def se3_log(T: np.ndarray) -> np.ndarray:
     V = _left_jacobian(w)
     v = np.linalg.solve(V, T[..., :3, 3][..., None])[..., 0]
     return np.concatenate([w, v], axis=-1)
+
+
+def as_rigid(T: np.ndarray, what: str, atol: float = 1e-6) -> np.ndarray:
+    """A read-only float copy of a rigid (4, 4) transform given by a user, or InputError naming
+    ``what`` and saying what was expected (finite 4x4, proper rotation block, last row 0 0 0 1)."""
+    try:
+        m = np.array(T, dtype=float)
+    except (TypeError, ValueError):
+        raise InputError(f"{what}: expected a 4x4 matrix of numbers") from None
+    if m.shape != (4, 4) or not np.all(np.isfinite(m)):
+        raise InputError(f"{what}: expected a finite 4x4 transform, got shape {m.shape}")
+    R = m[:3, :3]
+    if not np.allclose(R.T @ R, np.eye(3), atol=atol) or np.linalg.det(R) < 0:
+        raise InputError(f"{what}: the 3x3 block is not a proper rotation")
+    if not np.allclose(m[3], [0.0, 0.0, 0.0, 1.0]):
+        raise InputError(f"{what}: last row must be [0, 0, 0, 1], got {m[3].tolist()}")
+    m.setflags(write=False)
+    return m

@@ -19,7 +19,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from rigcal.errors import InputError
-from rigcal.geometry.se3 import invert
+from rigcal.geometry.se3 import as_rigid, invert
 from rigcal.io._text import load_yaml, read_text
 
 
@@ -32,16 +32,7 @@ class CalibrationTransforms:
 
 
 def _matrix(value: Any, where: str) -> np.ndarray:
-    try:
-        T = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise InputError(f"{where}: expected a 4x4 matrix of numbers") from None
-    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-        raise InputError(f"{where}: expected a finite 4x4 matrix, got shape {T.shape}")
-    R = T[:3, :3]
-    if not np.allclose(R.T @ R, np.eye(3), atol=1e-5) or np.linalg.det(R) <= 0 or not np.allclose(T[3], [0, 0, 0, 1]):
-        raise InputError(f"{where}: not a rigid transform (rotation block not orthonormal or last row not 0 0 0 1)")
-    return T
+    return as_rigid(value, where, atol=1e-5)
 
 
 def parse_calibration_transforms(text: str, source: str) -> CalibrationTransforms:

@@ -100,20 +100,6 @@ def _ros_frame(frame: str, sensor: str) -> str:
     return frame
 
 
-def _node_names(names: list[str]) -> dict[str, str]:
-    """Valid, unique ROS node names for sensors."""
-    out: dict[str, str] = {}
-    used: set[str] = set()
-    for name in names:
-        base = "rigcal_" + re.sub(r"[^A-Za-z0-9_]", "_", name)
-        node, n = base, 2
-        while node in used:
-            node, n = f"{base}_{n}", n + 1
-        used.add(node)
-        out[name] = node
-    return out
-
-
 def ros1_launch_text(result: CalibrationResult) -> str:
     """A ROS 1 launch file publishing every non-reference sensor's pose in the reference frame
     (``T_reference_sensor``), at full float precision (see :mod:`rigcal.io.tf_export`)."""

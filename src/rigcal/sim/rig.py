@@ -39,6 +39,7 @@ from rigcal.errors import InputError
 from rigcal.geometry.se3 import from_rt, invert
 from rigcal.geometry.so3 import matrix_from_rpy
 from rigcal.targets.circle_board import board_centres, reflector_in_board
+from rigcal.geometry.se3 import as_rigid
 
 RIG_FRAME = "rig"
 
@@ -97,17 +98,7 @@ def _as_rng(rng: np.random.Generator | int) -> np.random.Generator:
     )
 
 
-def _check_rigid(T: np.ndarray, what: str) -> np.ndarray:
-    m = np.array(T, dtype=float)
-    if m.shape != (4, 4) or not np.all(np.isfinite(m)):
-        raise InputError(f"{what}: expected a finite 4x4 transform, got shape {m.shape}")
-    R = m[:3, :3]
-    if not np.allclose(R.T @ R, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
-        raise InputError(f"{what}: the 3x3 block is not a proper rotation")
-    if not np.allclose(m[3], [0.0, 0.0, 0.0, 1.0]):
-        raise InputError(f"{what}: last row must be [0, 0, 0, 1], got {m[3].tolist()}")
-    m.setflags(write=False)
-    return m
+_check_rigid = as_rigid
 
 
 @dataclass(frozen=True, eq=False)

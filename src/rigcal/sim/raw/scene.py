@@ -41,6 +41,7 @@ import numpy as np
 from rigcal.dataset import BoardGeometry
 from rigcal.errors import InputError
 from rigcal.targets.circle_board import board_centres, reflector_in_board
+from rigcal.geometry.se3 import as_rigid
 
 SURFACE_NONE = -1
 SURFACE_PLATE = 0
@@ -52,17 +53,7 @@ _TEXTURE_TILE_PX = 1024
 _EPS_T = 1e-6
 
 
-def _check_rigid(T: np.ndarray, what: str) -> np.ndarray:
-    m = np.array(T, dtype=float)
-    if m.shape != (4, 4) or not np.all(np.isfinite(m)):
-        raise InputError(f"{what}: expected a finite 4x4 transform, got shape {m.shape}")
-    R = m[:3, :3]
-    if not np.allclose(R.T @ R, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
-        raise InputError(f"{what}: the 3x3 block is not a proper rotation")
-    if not np.allclose(m[3], [0.0, 0.0, 0.0, 1.0]):
-        raise InputError(f"{what}: last row must be [0, 0, 0, 1], got {m[3].tolist()}")
-    m.setflags(write=False)
-    return m
+_check_rigid = as_rigid
 
 
 def _finite_positive(value: float, what: str, allow_zero: bool = False) -> float:

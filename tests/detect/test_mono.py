@@ -212,7 +212,9 @@ POSES = [  # yaw, pitch, u, v: tilts up to 35 degrees, across the image
 ]
 
 
-@pytest.mark.parametrize("distance, median_mm, max_mm", [(3.0, 3.0, 10.0), (5.0, 10.0, 25.0), (7.0, 20.0, 50.0)])
+@pytest.mark.parametrize(
+    "distance, median_mm, max_mm", [(3.0, 3.0, 6.0), (5.0, 10.0, 15.0), (7.0, 10.0, 25.0)]
+)
 def test_synthetic_centre_accuracy(distance, median_mm, max_mm):
     errors = []
     for k, (yaw, pitch, u, v) in enumerate(POSES):
@@ -248,12 +250,27 @@ def test_fitting_the_rim_radius_removes_the_edge_bias_from_the_distance():
     # with the radius fixed, a sub-pixel edge bias scales the distance; fitted, it does not
     errs = {}
     for free in (True, False):
+        config = MonoDetectorConfig(fit_hole_radius=free)
         e = [
-            np.median(centre_errors(board_pose(6.0, yaw, pitch, 0.0, u, v), MonoDetectorConfig(fit_hole_radius=free), seed=k)[0])
+            np.median(centre_errors(board_pose(6.0, yaw, pitch, 0.0, u, v), config, seed=k)[0])
             for k, (yaw, pitch, u, v) in enumerate(POSES[:3])
         ]
         errs[free] = np.median(e)
     assert errs[True] < errs[False]
+
+
+def test_planar_pose_ambiguity_is_resolved_by_the_rims():
+    # far, mildly tilted boards: the two IPPE poses of the four centres are close in cost; the
+    # rims decide, and the chosen board normal is the true one
+    rng = np.random.default_rng(21)
+    for k in range(6):
+        yaw, pitch = rng.uniform(-20.0, 20.0, 2)
+        T = board_pose(6.0, yaw, pitch, 0.0, rng.uniform(400, 1500), rng.uniform(300, 900))
+        _, out = centre_errors(T, seed=30 + k, noise=4.0)
+        normal_error = math.degrees(math.acos(min(1.0, out.T_camera_board[:3, 2] @ T[:3, 2])))
+        assert normal_error < 3.0
+        q = out.detection.quality
+        assert q["flip_cost_ratio"] >= 1.0 and q["flip_angle_deg"] >= 0.0
 
 
 @pytest.mark.parametrize("roll", [-35.0, -10.0, 0.0, 20.0, 40.0])
@@ -301,7 +318,8 @@ def test_roi():
     T = board_pose(4.0, 0.0, 0.0, 0.0, 1300, 800)
     img = render(T, seed=14)
     uv, _ = CAM.project(true_centres(T))
-    inside = MonoDetectorConfig(roi=(int(uv[:, 0].min()) - 100, int(uv[:, 1].min()) - 100, 400, 400))
+    corner = (int(uv[:, 0].min()) - 100, int(uv[:, 1].min()) - 100)
+    inside = MonoDetectorConfig(roi=(corner[0], corner[1], 400, 400))
     outside = MonoDetectorConfig(roi=(0, 0, 600, 400))
     full = detect(img)
     cropped = detect(img, inside)
@@ -367,7 +385,8 @@ def test_pnp_failure_is_reported(monkeypatch):
 
 def test_poor_fit_threshold():
     img = render(board_pose(4.0, 10.0, 10.0), seed=19)
-    out = detect_board_mono(ImageFrame("cam", 1, img), CAM, config=MonoDetectorConfig(max_reprojection_rms_px=1e-6))
+    config = MonoDetectorConfig(max_reprojection_rms_px=1e-6)
+    out = detect_board_mono(ImageFrame("cam", 1, img), CAM, config=config)
     assert isinstance(out, DetectionFailure) and out.reason == "poor_fit"
 
 

@@ -105,7 +105,10 @@ def test_real_ini():
     check_prius(read_intrinsics(path))
 
 
-@pytest.mark.parametrize("suffix, text", [(".ini", INI), (".yaml", YAML), (".yml", YAML), (".txt", INI), (".cal", YAML)])
+@pytest.mark.parametrize(
+    "suffix, text",
+    [(".ini", INI), (".yaml", YAML), (".yml", YAML), (".txt", INI), (".cal", YAML)],
+)
 def test_read_intrinsics_by_extension_or_content(tmp_path, suffix, text):
     p = tmp_path / f"cam{suffix}"
     p.write_text(text)
@@ -118,12 +121,13 @@ def test_read_missing_file(tmp_path):
 
 
 def test_several_camera_sections_need_a_name():
-    two = INI + "\n[narrow_stereo/right]\ncamera matrix\n1 0 1\n0 1 1\n0 0 1\ndistortion\n0 0 0 0 0\n"
+    right = "[narrow_stereo/right]\ncamera matrix\n1 0 1\n0 1 1\n0 0 1\ndistortion\n0 0 0 0 0\n"
+    two = INI + "\n" + right
     with pytest.raises(InputError, match="several camera sections"):
         parse_intrinsics_ini_text(two, "s.ini")
     check_prius(parse_intrinsics_ini_text(two, "s.ini", camera_name="narrow_stereo/left"))
-    right = parse_intrinsics_ini_text(two, "s.ini", camera_name="narrow_stereo/right")
-    assert right.param("fx") == 1.0
+    cam_right = parse_intrinsics_ini_text(two, "s.ini", camera_name="narrow_stereo/right")
+    assert cam_right.param("fx") == 1.0
     with pytest.raises(InputError, match=r"no camera section \[front\]"):
         parse_intrinsics_ini_text(two, "s.ini", camera_name="front")
 
@@ -136,17 +140,55 @@ def test_several_camera_sections_need_a_name():
         ("width\n1936", "", r"bad.ini: \[image\]: missing 'width'"),
         ("1216", "1216.5", r"bad.ini: line 9: \[image\] height: expected one integer"),
         ("1936", "abc", r"bad.ini: line 7: \[image\] width: expected a number, got 'abc'"),
-        ("-0.062404", "-0.062404 0.1", r"line 19: \[narrow_stereo/left\] distortion: expected 5 plumb-bob coefficients .* got 6"),
-        ("0.003024 -0.002257 -0.062404", "0.003024", r"distortion: expected 5 plumb-bob coefficients .*got 3"),
-        ("1442.298159 621.179140", "1442.298159", r"line 14: \[narrow_stereo/left\] camera matrix: expected 3 rows of 3 numbers, got 3 rows \(3 \+ 2 \+ 3 numbers\)"),
-        ("621.179140", "six21", r"line 16: \[narrow_stereo/left\] camera matrix: expected a number, got 'six21'"),
+        (
+            "-0.062404",
+            "-0.062404 0.1",
+            r"line 19: \[narrow_stereo/left\] distortion: "
+            r"expected 5 plumb-bob coefficients .* got 6",
+        ),
+        (
+            "0.003024 -0.002257 -0.062404",
+            "0.003024",
+            r"distortion: expected 5 plumb-bob coefficients .*got 3",
+        ),
+        (
+            "1442.298159 621.179140",
+            "1442.298159",
+            r"line 14: \[narrow_stereo/left\] camera matrix: expected 3 rows of 3 numbers, "
+            r"got 3 rows \(3 \+ 2 \+ 3 numbers\)",
+        ),
+        (
+            "621.179140",
+            "six21",
+            r"line 16: \[narrow_stereo/left\] camera matrix: expected a number, got 'six21'",
+        ),
         ("0.999992", "nan", r"rectification: expected a finite number, got 'nan'"),
-        ("1495.468642 0.000000 961.272442 0.000000", "1495.468642 0.000000 961.272442", r"projection: expected 3 rows of 4 numbers"),
-        ("camera matrix\n", "", r"line \d+: \[narrow_stereo/left\] unknown key '1419.435287|numbers before any key"),
-        ("distortion\n-0.175243 0.158967 0.003024 -0.002257 -0.062404\n", "", r"\[narrow_stereo/left\] \(line 12\): missing 'distortion'"),
+        (
+            "1495.468642 0.000000 961.272442 0.000000",
+            "1495.468642 0.000000 961.272442",
+            r"projection: expected 3 rows of 4 numbers",
+        ),
+        (
+            "camera matrix\n",
+            "",
+            r"line 14: \[narrow_stereo/left\] numbers before any key",
+        ),
+        (
+            "distortion\n-0.175243 0.158967 0.003024 -0.002257 -0.062404\n",
+            "",
+            r"\[narrow_stereo/left\] \(line 12\): missing 'distortion'",
+        ),
         ("[narrow_stereo/left]", "[narrow_stereo/left", "line 12: malformed section header"),
-        ("rectification", "rectifikation", r"unknown key 'rectifikation' \(expected one of: camera matrix, distortion"),
-        ("0.000000 1442.298159", "1.0 1442.298159", r"camera matrix: expected \[\[fx, 0, cx\], \[0, fy, cy\], \[0, 0, 1\]\]"),
+        (
+            "rectification",
+            "rectifikation",
+            r"unknown key 'rectifikation' \(expected one of: camera matrix, distortion",
+        ),
+        (
+            "0.000000 1442.298159",
+            "1.0 1442.298159",
+            r"camera matrix: expected \[\[fx, 0, cx\], \[0, fy, cy\], \[0, 0, 1\]\]",
+        ),
         ("1419.435287 0.000000", "-1419.435287 0.000000", r"camera matrix: fx and fy must be > 0"),
     ],
 )
@@ -171,16 +213,48 @@ def test_ini_text_before_any_section():
     "old, new, match",
     [
         ("image_width: 1936\n", "", "bad.yaml: missing field 'image_width'"),
-        ("image_height: 1216", "image_height: -3", "bad.yaml: image_height: expected a positive integer"),
-        ("image_width: 1936", "image_width: wide", "bad.yaml: image_width: expected a positive integer"),
-        ("plumb_bob", "equidistant", "bad.yaml: distortion_model: only plumb_bob is supported, got 'equidistant'"),
-        ("cols: 5", "cols: 6", r"bad.yaml: distortion_coefficients: rows x cols = 1 x 6 but data has 5 numbers"),
-        ("cols: 5\n  data: [-0.175243, 0.158967, 0.003024, -0.002257, -0.062404]", "cols: 3\n  data: [-0.175243, 0.158967, 0.003024]", r"distortion_coefficients: expected 5 plumb-bob coefficients .*got 3"),
-        ("0.0, 1442.298159", "0.0, x1442", r"bad.yaml: camera_matrix.data\[4\]: expected a finite number, got 'x1442'"),
-        ("rows: 3\n  cols: 3\n  data: [1419", "rows: 1\n  cols: 9\n  data: [1419", r"camera_matrix: expected 3 x 3, got 1 x 9"),
+        (
+            "image_height: 1216",
+            "image_height: -3",
+            "bad.yaml: image_height: expected a positive integer",
+        ),
+        (
+            "image_width: 1936",
+            "image_width: wide",
+            "bad.yaml: image_width: expected a positive integer",
+        ),
+        (
+            "plumb_bob",
+            "equidistant",
+            "bad.yaml: distortion_model: only plumb_bob is supported, got 'equidistant'",
+        ),
+        (
+            "cols: 5",
+            "cols: 6",
+            r"bad.yaml: distortion_coefficients: rows x cols = 1 x 6 but data has 5 numbers",
+        ),
+        (
+            "cols: 5\n  data: [-0.175243, 0.158967, 0.003024, -0.002257, -0.062404]",
+            "cols: 3\n  data: [-0.175243, 0.158967, 0.003024]",
+            r"distortion_coefficients: expected 5 plumb-bob coefficients .*got 3",
+        ),
+        (
+            "0.0, 1442.298159",
+            "0.0, x1442",
+            r"bad.yaml: camera_matrix.data\[4\]: expected a finite number, got 'x1442'",
+        ),
+        (
+            "rows: 3\n  cols: 3\n  data: [1419",
+            "rows: 1\n  cols: 9\n  data: [1419",
+            r"camera_matrix: expected 3 x 3, got 1 x 9",
+        ),
         ("  cols: 4\n", "  cols: 3\n", r"projection_matrix: rows x cols = 3 x 3 but data has 12"),
         ("camera_matrix:\n  rows: 3\n", "camera_matrix:\n", r"camera_matrix: missing 'rows'"),
-        ("image_width: 1936", "image_width: 1936\nimage_width: 1936", r"duplicate key 'image_width'"),
+        (
+            "image_width: 1936",
+            "image_width: 1936\nimage_width: 1936",
+            r"duplicate key 'image_width'",
+        ),
     ],
 )
 def test_yaml_errors_name_file_and_field(old, new, match):

@@ -3,9 +3,10 @@
 Pipeline (paper section III-B: "the four circles are detected based on edges in the 2D image
 plane; using the known geometry of the calibration board, PnP extracts the 3D locations"):
 
-1. **Hole candidates.** The holes show the darker scene behind a bright plate. The grey image
-   (optionally an ROI, by default all of it) is halved and thresholded at several levels; the
-   outer contours at each level that are well fitted by an ellipse, of a plausible size and
+1. **Hole candidates.** The holes show the scene behind the plate, usually darker than the
+   white plate (``hole_polarity="any"`` then also tries brighter). The grey image (optionally
+   an ROI, by default all of it) is halved and thresholded at several levels; the outer
+   contours at each level that are well fitted by an ellipse, of a plausible size and
    surrounded by a brighter ring (the plate) are candidates. Candidates found at several levels
    are merged, keeping the level closest to half-way between hole and plate grey.
 2. **The square pattern.** Among the candidates, the four whose centres form a projected square
@@ -13,27 +14,38 @@ plane; using the known geometry of the calibration board, PnP extracts the 3D lo
    are the images of the board's circles under that affine map (size and shape) are chosen, and
    ordered top-left, top-right, bottom-left, bottom-right as seen in the image (clockwise from
    the corner nearest the top-left direction).
-3. **PnP.** ``cv2.solvePnPGeneric`` (IPPE, planar; with distortion) on the ellipse centres gives
+3. **PnP.** Sub-pixel rim edges are found at full resolution on rays of each ellipse and the
+   ellipses refitted to them. Their centres, undistorted through the camera model (so any
+   :class:`CameraModel` works), go to ``cv2.solvePnPGeneric`` (IPPE, planar), which returns
    both planar pose hypotheses ``T_camera_board``.
 4. **Rim refinement (bias correction).** The centre of a projected circle is not the projection
-   of its centre, so ellipse centres bias the pose. Sub-pixel rim edge points are found along
-   rays of each ellipse at full resolution, and the pose is refined (6 DoF, robust loss) so that
-   the projected rims of the four 3D circles (diameter ``hole_diameter_m``) pass through them,
-   measured as the distance along the projected rim's normal [px]. Both IPPE hypotheses are
-   refined; the one with the lower cost wins. The edges are then re-sampled along the normals of
-   the projected rims and the pose refined once more.
+   of its centre, so ellipse centres bias the pose, most for close, tilted boards. The pose is
+   refined (robust Gauss-Newton) so that the projected rims of the four 3D circles pass through
+   the rim edge points, measured along the projected rim's normal [px]. The rims' common radius
+   is fitted too (``fit_hole_radius``): the distance then rests on the hole spacing, not on
+   the apparent hole size, which sub-pixel edge biases and the plate's lit inner wall distort.
+   Both IPPE hypotheses are refined and the one with the lower cost wins; the edges are then
+   re-sampled along the normals of the projected rims and the fit repeated.
 
 The result holds the four hole centres ``T_camera_board @ c_board`` in the camera optical frame
 (4, 3) [m], ordered TL, TR, BL, BR (see :mod:`rigcal.targets.circle_board`). ``quality``:
 
-* ``reprojection_rms_px`` - RMS distance of the rim edge points to the projected 3D rims;
+* ``reprojection_rms_px`` - RMS distance of all rim edge points (outliers included) to the
+  projected 3D rims;
 * ``square_side_error_m`` - largest deviation from ``spacing_m`` of the four sides between
   hole centres fitted independently (a circle per hole in the fitted board plane): a
   consistency check, since the returned centres form the exact square by construction;
 * ``hole_diameter_error_m`` - largest deviation of those independent circles' diameters;
 * ``distance_m`` (camera to board centre), ``tilt_deg`` (board normal vs line of sight),
   ``centre_bias_px`` (largest ellipse-centre vs projected-centre offset: the corrected bias),
-  ``pnp_rms_px`` (PnP on ellipse centres), ``rim_points``, ``candidates``.
+  ``pnp_rms_px`` (PnP on the ellipse centres), ``hole_diameter_m`` (the fitted rims'
+  diameter), ``rim_points``, ``candidates``, ``bright_holes`` (1.0 when the holes are brighter
+  than the plate);
+* ``flip_cost_ratio`` / ``flip_angle_deg`` - the planar pose ambiguity: the other IPPE
+  hypothesis, refined the same way, has this many times the cost and a board normal this far
+  from the chosen one (``inf`` / 0 when there is no other; without rim refinement the ratio
+  is that of the PnP RMS). A ratio near 1 with a large angle
+  means the board's tilt is uncertain (far, nearly frontal boards); the centres' mean is not.
 
 Failures (:class:`DetectionFailure` ``reason``): ``wrong_image_size``, ``too_few_holes``,
 ``no_square_pattern``, ``pnp_failed``, ``poor_fit``.
@@ -41,7 +53,6 @@ Failures (:class:`DetectionFailure` ``reason``): ``wrong_image_size``, ``too_few
 
 from __future__ import annotations
 
-import itertools
 import math
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -145,7 +156,8 @@ class MonoDetectorConfig:
             roi = tuple(self.roi)
             if len(roi) != 4 or any(isinstance(v, bool) or not isinstance(v, int) for v in roi):
                 raise ConfigError(
-                    f"mono detector: roi must be four integers (x, y, width, height), got {self.roi!r}"
+                    "mono detector: roi must be four integers (x, y, width, height), got "
+                    f"{self.roi!r}"
                 )
             if roi[0] < 0 or roi[1] < 0 or roi[2] <= 0 or roi[3] <= 0:
                 raise ConfigError(
@@ -246,7 +258,7 @@ def fit_board_mono(
     for polarity in polarities:
         # the pipeline looks for dark holes in a bright plate: invert for bright holes
         work = grey if polarity == "dark" else cv2.bitwise_not(grey)
-        candidates = find_hole_candidates(work, board, config)
+        candidates = find_hole_candidates(work, config)
         counts[polarity] = len(candidates)
         if len(candidates) >= 4:
             pattern = find_square_pattern(candidates, board, config)
@@ -265,29 +277,39 @@ def fit_board_mono(
             f"no 4 of the hole candidates ({seen}) form the board's square "
             f"(spacing {board.spacing_m:g} m, hole diameter {board.hole_diameter_m:g} m)",
         )
-    ellipses = tuple(candidates[i] for i in pattern)
-    centres_px = np.array([e.centre for e in ellipses])
     obj = board_centres(board)
+    # sub-pixel rim edges at full resolution, and the ellipses refitted to them
+    chosen = tuple(candidates[i] for i in pattern)
+    edge = _edge_image(work, chosen, config)
+    rim_px, rim_hole = _rim_points_radial(edge, chosen, config)
+    ellipses = _refit_ellipses(chosen, rim_px, rim_hole)
+    centres_px = np.array([e.centre for e in ellipses])
 
     poses = _pnp(obj, centres_px, camera)
     if not poses:
-        return fail(PNP_FAILED, f"cv2.solvePnPGeneric (IPPE) found no pose for {centres_px.tolist()}")
+        return fail(
+            PNP_FAILED, f"cv2.solvePnPGeneric (IPPE) found no pose for {centres_px.tolist()}"
+        )
     pnp_rms = min(rms for _, rms in poses)
     radius_m = board.hole_diameter_m / 2.0
 
+    flip = (math.inf, 0.0)  # (cost ratio, normal angle [deg]) of the other IPPE hypothesis
     if config.refine_rim:
-        edge = _edge_image(work, centres_px, ellipses, config)
-        rim_px, rim_hole = _rim_points_radial(edge, ellipses, config)
         if rim_px.shape[0] < 12:
             return fail(PNP_FAILED, f"only {rim_px.shape[0]} rim edge points found on the holes")
         free = config.fit_hole_radius
-        best = None
-        for T0, _ in poses:  # choose the IPPE hypothesis on a third of the rim points
-            fit = _fit_rims(T0, radius_m, rim_px[::3], rim_hole[::3], obj, camera, free)
-            if fit is not None and (best is None or fit.cost < best.cost):
-                best = fit
-        if best is None:
+        # both IPPE hypotheses, on every second rim point (the winner is refined further below)
+        fits = [
+            _fit_rims(T0, radius_m, rim_px[::2], rim_hole[::2], obj, camera, free, 12)
+            for T0, _ in poses
+        ]
+        fits = sorted((f for f in fits if f is not None), key=lambda f: f.cost)
+        if not fits:
             return fail(PNP_FAILED, "the rim fit diverged for both IPPE pose hypotheses")
+        best = fits[0]
+        if len(fits) > 1:  # how clearly the rims tell the planar pose ambiguity apart
+            cos = float(np.clip(fits[0].T[:3, 2] @ fits[1].T[:3, 2], -1.0, 1.0))
+            flip = (fits[1].cost / max(fits[0].cost, 1e-12), math.degrees(math.acos(cos)))
         rim_px, rim_hole = _rim_points_along_model(
             edge, best.T, obj, best.radius_m, camera, ellipses, config
         )
@@ -303,13 +325,19 @@ def fit_board_mono(
         keep = np.isfinite(resid)
         rms = float(np.sqrt(np.mean(resid[keep] ** 2))) if np.any(keep) else math.inf
     else:
-        T = min(poses, key=lambda p: p[1])[0]
+        ranked = sorted(poses, key=lambda p: p[1])
+        T = ranked[0][0]
         rim_px, rim_hole = np.zeros((0, 2)), np.zeros(0, dtype=int)
         rms = pnp_rms
+        if len(ranked) > 1:
+            cos = float(np.clip(ranked[0][0][:3, 2] @ ranked[1][0][:3, 2], -1.0, 1.0))
+            flip = (ranked[1][1] / max(ranked[0][1], 1e-12), math.degrees(math.acos(cos)))
 
     centres_cam = obj @ T[:3, :3].T + T[:3, 3]
     if not np.all(centres_cam[:, 2] > 0):
-        return fail(PNP_FAILED, f"the pose puts the board behind the camera: {centres_cam.tolist()}")
+        return fail(
+            PNP_FAILED, f"the pose puts the board behind the camera: {centres_cam.tolist()}"
+        )
     if not rms <= config.max_reprojection_rms_px:
         return fail(
             POOR_FIT,
@@ -328,6 +356,8 @@ def fit_board_mono(
         "hole_diameter_m": 2.0 * radius_m,
         "candidates": float(len(candidates)),
         "bright_holes": float(polarity == "bright"),
+        "flip_cost_ratio": flip[0],
+        "flip_angle_deg": flip[1],
     }
     if rim_px.shape[0]:
         side_err, diam_err = _independent_hole_check(T, rim_px, rim_hole, board, camera)
@@ -348,16 +378,14 @@ def _roi(config: MonoDetectorConfig, width: int, height: int) -> tuple[int, int,
     return x0, y0, min(x + w, width) - x0, min(y + h, height) - y0
 
 
-def find_hole_candidates(
-    grey: np.ndarray, board: BoardGeometry, config: MonoDetectorConfig
-) -> list[HoleEllipse]:
+def find_hole_candidates(grey: np.ndarray, config: MonoDetectorConfig) -> list[HoleEllipse]:
     """Dark elliptical blobs inside a brighter surround in a uint8 grey image (H, W), in
     full-resolution pixel coordinates, best first."""
     x0, y0, w, h = _roi(config, grey.shape[1], grey.shape[0])
     if w < 8 or h < 8:
         return []
     crop = grey[y0 : y0 + h, x0 : x0 + w]
-    scale = 2 if config.min_hole_radius_px >= 8 else 1
+    scale = 2 if config.min_hole_radius_px >= 5 else 1  # find holes of >= 2.5 px at half size
     small = crop if scale == 1 else cv2.resize(crop, (w // 2, h // 2), interpolation=cv2.INTER_AREA)
     sigma = config.blur_sigma_px / scale
     small = cv2.GaussianBlur(small, (0, 0), sigma) if sigma > 0.3 else small
@@ -514,10 +542,7 @@ def find_square_pattern(
     obj = board_centres(board)[:, :2] * np.array([1.0, -1.0])  # board y up -> image v down
     r_board = board.hole_diameter_m / 2.0
     best, best_score = None, math.inf
-    nodes = [i for i in range(n) if adj[i].sum() >= 3]
-    for combo in itertools.combinations(nodes, 4):
-        if not all(adj[i, j] for i, j in itertools.combinations(combo, 2)):
-            continue
+    for combo in _four_cliques(adj):
         idx = np.array(combo)
         order = order_corners(c[idx])
         if order is None:
@@ -527,6 +552,20 @@ def find_square_pattern(
         if score is not None and score < best_score:
             best, best_score = tuple(int(i) for i in idx), score
     return best
+
+
+def _four_cliques(adj: np.ndarray):
+    """Every i < j < k < l with all six pairs adjacent (pruned as the set grows)."""
+    n = adj.shape[0]
+    nbrs = [set(np.flatnonzero(adj[i]).tolist()) for i in range(n)]
+    for i in range(n):
+        if len(nbrs[i]) < 3:
+            continue
+        for j in sorted(x for x in nbrs[i] if x > i):
+            common_ij = nbrs[i] & nbrs[j]
+            for k in sorted(x for x in common_ij if x > j):
+                for l in sorted(x for x in common_ij & nbrs[k] if x > k):
+                    yield i, j, k, l
 
 
 def _pattern_score(
@@ -598,9 +637,10 @@ class _EdgeImage(NamedTuple):
 
 
 def _edge_image(
-    grey: np.ndarray, centres: np.ndarray, ellipses: tuple[HoleEllipse, ...],
-    config: MonoDetectorConfig,
+    grey: np.ndarray, ellipses: tuple[HoleEllipse, ...], config: MonoDetectorConfig
 ) -> _EdgeImage:
+    """The blurred float crop of ``grey`` around the four holes that rim edges are found in."""
+    centres = np.array([e.centre for e in ellipses])
     amax = max(e.a for e in ellipses)
     margin = int(2.0 * amax + 8)
     x0 = max(int(centres[:, 0].min()) - margin, 0)
@@ -664,6 +704,43 @@ def _rim_points_radial(
     return np.concatenate(pts), np.concatenate(holes)
 
 
+def _refit_ellipses(
+    ellipses: tuple[HoleEllipse, ...], rim_px: np.ndarray, rim_hole: np.ndarray
+) -> tuple[HoleEllipse, ...]:
+    """Each hole's ellipse fitted to its sub-pixel rim points (points off the first fit by more
+    than 3 robust sigmas dropped once); a hole keeps its old ellipse if the refit is implausible."""
+    out = []
+    for i, e in enumerate(ellipses):
+        pts = rim_px[rim_hole == i]
+        new = e
+        for _ in range(2):
+            if pts.shape[0] < 8:
+                break
+            (cu, cv_), (d1, d2), ang_deg = cv2.fitEllipse(pts.astype(np.float32))
+            a, b, ang = d1 / 2.0, d2 / 2.0, math.radians(ang_deg)
+            if b > a:
+                a, b, ang = b, a, ang + math.pi / 2
+            plausible = (
+                b > 0
+                and math.hypot(cu - e.u, cv_ - e.v) < 0.5 * e.b
+                and 0.7 < a / e.a < 1.0 / 0.7
+                and 0.7 < b / e.b < 1.0 / 0.7
+            )
+            if not plausible:
+                break
+            new = HoleEllipse(cu, cv_, a, b, ang, e.plate, e.hole, e.threshold)
+            c, s = math.cos(ang), math.sin(ang)
+            d = pts - (cu, cv_)
+            rho = np.hypot((c * d[:, 0] + s * d[:, 1]) / a, (-s * d[:, 0] + c * d[:, 1]) / b)
+            dev = np.abs(rho - 1.0) * b
+            keep = dev <= max(3.0 * 1.4826 * float(np.median(dev)), 0.3)
+            if keep.all():
+                break
+            pts = pts[keep]
+        out.append(new)
+    return tuple(out)
+
+
 def _rim_points_along_model(
     edge: _EdgeImage, T: np.ndarray, obj: np.ndarray, radius_m: float, camera: CameraModel,
     ellipses: tuple[HoleEllipse, ...], config: MonoDetectorConfig,
@@ -705,31 +782,43 @@ def _rim_residuals_px(
     scalar or (K,)), along the rim's image normal (first order): (M,) or (K, M). NaN where the
     ray (unit rays (M, 3) of ``uv``) misses the board plane."""
     Ts = np.asarray(T)[None] if np.ndim(T) == 2 else np.asarray(T)
+    r, _ = _rim_geometry(Ts, radius_m, rays, uv, hole, obj, camera)
+    return r[0] if np.ndim(T) == 2 else r
+
+
+def _rim_geometry(
+    Ts: np.ndarray, radius_m: float | np.ndarray, rays: np.ndarray, uv: np.ndarray,
+    hole: np.ndarray, obj: np.ndarray, camera: CameraModel, normals: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Residuals (K, M) of :func:`_rim_residuals_px` for poses ``Ts`` (K, 4, 4) and the unit
+    image normals (K, M, 2) they are measured along. Given ``normals`` (M, 2), those are used
+    for every pose instead (finite differences, where the normals hardly change)."""
     K, M = Ts.shape[0], len(hole)
     rad = np.broadcast_to(np.asarray(radius_m, dtype=float), (K,))[:, None, None]
     R, t = Ts[:, :3, :3], Ts[:, :3, 3]
     nrm = R[:, :, 2]  # (K, 3) board normals in the camera frame
     with np.errstate(divide="ignore", invalid="ignore"):
-        s = np.sum(nrm * t, axis=1)[:, None] / (nrm @ rays.T)  # (K, M)
-    P_c = rays[None] * s[..., None]
-    P_b = np.matmul(P_c - t[:, None], R)  # R^T (P - t), row-wise
+        s = np.sum(nrm * t, axis=1)[:, None] / (nrm @ rays.T)  # (K, M) ray-plane distances
+    P_b = np.matmul(rays[None] * s[..., None] - t[:, None], R)  # R^T (P - t), row-wise
     d = P_b[..., :2] - obj[hole, :2][None]
     with np.errstate(divide="ignore", invalid="ignore"):
-        u = d / np.linalg.norm(d, axis=-1, keepdims=True)
+        u = d / np.linalg.norm(d, axis=-1, keepdims=True)  # in-plane direction from the centre
     zeros = np.zeros((K, M, 1))
-    Q_b = np.concatenate([obj[hole, :2][None] + rad * u, zeros], axis=-1)
     Rt = np.swapaxes(R, 1, 2)
-    Q_c = np.matmul(Q_b, Rt) + t[:, None]
-    tan_c = np.matmul(np.concatenate([-u[..., 1:], u[..., :1], zeros], axis=-1), Rt)
-    flat = Q_c.reshape(-1, 3)
-    proj, _ = camera.project(flat)
-    J = camera.project_jacobian(flat)
-    tan = np.sum(J * tan_c.reshape(-1, 1, 3), axis=2)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        n_img = np.column_stack([tan[:, 1], -tan[:, 0]]) / np.linalg.norm(tan, axis=1)[:, None]
+    rim_c = np.matmul(np.concatenate([obj[hole, :2][None] + rad * u, zeros], axis=-1), Rt)
+    rim_c = (rim_c + t[:, None]).reshape(-1, 3)  # the nearest rim point, camera frame
+    proj, _ = camera.project(rim_c)
+    if normals is None:
+        tan_c = np.matmul(np.concatenate([-u[..., 1:], u[..., :1], zeros], axis=-1), Rt)
+        tan = np.sum(camera.project_jacobian(rim_c) * tan_c.reshape(-1, 1, 3), axis=2)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            n_img = np.column_stack([tan[:, 1], -tan[:, 0]])
+            n_img /= np.linalg.norm(tan, axis=1)[:, None]
+    else:
+        n_img = np.tile(normals, (K, 1))
     r = np.sum(n_img * (np.tile(uv, (K, 1)) - proj), axis=1).reshape(K, M)
     r[~(s > 0)] = np.nan
-    return r[0] if np.ndim(T) == 2 else r
+    return r, n_img.reshape(K, M, 2)
 
 
 _FD_STEP = 1e-7
@@ -767,10 +856,15 @@ def _fit_rims(
         steps = np.column_stack([steps, np.zeros(n + 1)])
 
     def evaluate(T: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
-        Ts = T @ se3_exp(steps[:, :6])
-        r = _rim_residuals_px(Ts, radius * np.exp(steps[:, 6]), rays, uv, hole, obj, camera)
+        # residuals at T, then forward differences of all coordinates in one batched call that
+        # keeps the image normals of T (a Gauss-Newton approximation of the Jacobian)
+        r0, normals = _rim_geometry(T[None], radius, rays, uv, hole, obj, camera)
+        Ts = T @ se3_exp(steps[1:, :6])
+        radii = radius * np.exp(steps[1:, 6])
+        r, _ = _rim_geometry(Ts, radii, rays, uv, hole, obj, camera, normals=normals[0])
+        r0 = np.where(np.isfinite(r0[0]), r0[0], 1e3)
         r = np.where(np.isfinite(r), r, 1e3)
-        return r[0], ((r[1:] - r[0]) / _FD_STEP).T
+        return r0, ((r - r0) / _FD_STEP).T
 
     T, radius = np.array(T0, dtype=float), float(radius0_m)
     r, J = evaluate(T, radius)

@@ -106,7 +106,9 @@ def _is_number(token: str) -> bool:
     return True
 
 
-def parse_intrinsics_ini_text(text: str, source: str, camera_name: str | None = None) -> RadtanCamera:
+def parse_intrinsics_ini_text(
+    text: str, source: str, camera_name: str | None = None
+) -> RadtanCamera:
     """A :class:`RadtanCamera` from the ROS calibrator's INI ``text``; ``source`` names the file.
 
     A file with several camera sections needs ``camera_name`` (the section name, e.g.

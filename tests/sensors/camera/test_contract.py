@@ -16,14 +16,23 @@ import numpy as np
 import pytest
 
 from rigcal.errors import InputError
-from rigcal.sensors.camera import CAMERA_MODELS, CameraModel, PinholeCamera, RadtanCamera, make_camera
+from rigcal.sensors.camera import (
+    CAMERA_MODELS,
+    CameraModel,
+    PinholeCamera,
+    RadtanCamera,
+    make_camera,
+)
 
 PRIUS = dict(width=1936, height=1216, fx=1419.435287, fy=1442.298159, cx=948.748187, cy=621.179140)
 PRIUS_DIST = dict(k1=-0.175243, k2=0.158967, p1=0.003024, p2=-0.002257, k3=-0.062404)
 
 CASES: list[tuple[str, Callable[[], CameraModel]]] = [
     ("pinhole-prius", lambda: PinholeCamera.from_intrinsics(**PRIUS)),
-    ("pinhole-vga-anisotropic", lambda: PinholeCamera.from_intrinsics(640, 480, 500, 520, 330, 235)),
+    (
+        "pinhole-vga-anisotropic",
+        lambda: PinholeCamera.from_intrinsics(640, 480, 500, 520, 330, 235),
+    ),
     ("radtan-prius", lambda: RadtanCamera.from_intrinsics(**PRIUS, **PRIUS_DIST)),
     (
         "radtan-strong-barrel",
@@ -268,7 +277,8 @@ def test_shapes_single_and_empty(camera):
 
 
 def test_bad_shapes_raise_input_error(camera):
-    with pytest.raises(InputError, match=r"expected an \(N, 3\) array of points, got shape \(4, 2\)"):
+    msg = r"expected an \(N, 3\) array of points, got shape \(4, 2\)"
+    with pytest.raises(InputError, match=msg):
         camera.project(np.zeros((4, 2)))
     with pytest.raises(InputError, match=r"expected an \(N, 2\) array of pixels"):
         camera.unproject(np.zeros((4, 3)))
@@ -300,7 +310,8 @@ def test_matches_opencv_project_points(camera):
     rng = np.random.default_rng(8)
     pts = rng.uniform([-2, -1.5, 0.5], [2, 1.5, 10], size=(1000, 3))
     uv, valid = camera.project(pts)
-    ref, _ = cv2.projectPoints(pts, np.zeros(3), np.zeros(3), camera.camera_matrix, camera.dist_coeffs)
+    K, dist = camera.camera_matrix, camera.dist_coeffs
+    ref, _ = cv2.projectPoints(pts, np.zeros(3), np.zeros(3), K, dist)
     ref = ref.reshape(-1, 2)
     domain = np.isfinite(uv).all(axis=1)
     assert valid.sum() > 300

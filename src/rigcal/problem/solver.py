@@ -21,7 +21,7 @@ import scipy.sparse
 import scipy.sparse.linalg
 
 from rigcal.errors import ConfigError
-from rigcal.geometry.se3 import se3_exp
+from rigcal.geometry.se3 import se3_exp, se3_log
 from rigcal.problem.residuals import (
     MODEL_CAMERA,
     MODEL_POINT,
@@ -125,10 +125,26 @@ class ElevationLimits:
 
 
 @dataclass(frozen=True, eq=False)  # holds arrays: compare by identity
+class PosePriors:
+    """Soft priors on poses: residual ``log(T_prior^-1 T) / sigma`` (6,) per block, rotation
+    first (e.g. a motion-capture pose known to 0.15 mm, or a mounting from CAD)."""
+
+    label: str
+    blocks: tuple[str, ...]
+    T_prior: np.ndarray  # (n, 4, 4)
+    sigma: np.ndarray  # (6,) [rad, rad, rad, m, m, m]
+
+    @property
+    def size(self) -> int:
+        return len(self.blocks)
+
+
+@dataclass(frozen=True, eq=False)  # holds arrays: compare by identity
 class Problem:
     poses: tuple[PoseBlock, ...]
     observations: tuple[Observations, ...]
     limits: tuple[ElevationLimits, ...] = ()
+    priors: tuple[PosePriors, ...] = ()
     #: largest violation of a field-of-view constraint accepted at the solution [rad]
     fov_tolerance_rad: float = 1e-7
 
@@ -137,6 +153,10 @@ class Problem:
         if len(set(names)) != len(names):
             raise ConfigError(f"duplicate pose blocks: {names}")
         known = set(names)
+        for pr in self.priors:
+            missing = set(pr.blocks) - known
+            if missing:
+                raise ConfigError(f"priors '{pr.label}' refer to unknown poses {sorted(missing)}")
         for batch in (*self.observations, *self.limits):
             missing = (set(batch.frame) | set(batch.observer)) - known
             if missing:
@@ -279,6 +299,7 @@ class _Layout:
             self.lim_ib = np.concatenate([ib for _, ib in self.lim_idx])
             self.lim_points = np.concatenate([b.points for b in problem.limits])
             self.lim_max = np.concatenate([b.max_elevation_rad for b in problem.limits])
+        self.prior_idx = [np.array([self.index[b] for b in pr.blocks], dtype=int) for pr in problem.priors]
         self.m_obs = sum(b.size * b.dim for b in problem.observations)
         self.m = self.m_obs + sum(b.size for b in problem.limits)
 
@@ -331,6 +352,25 @@ def _evaluate(problem: Problem, layout: _Layout, T: np.ndarray, loss: str, c: fl
         if want_jac:
             parts.append((JA * w[:, :, None], slots[0]))
             parts.append((JB * w[:, :, None], slots[1]))
+    row0 = sum(p.size for p in r_parts)
+    for pr, idx in zip(problem.priors, layout.prior_idx):
+        if pr.size == 0:
+            continue
+        D = np.linalg.inv(pr.T_prior) @ T[idx]
+        r = se3_log(D) / pr.sigma
+        cost += 0.5 * float(np.sum(r * r))
+        r_parts.append(r.ravel())
+        if want_jac:
+            # d log(T0^-1 T exp(xi)) / d xi ~ identity for small deviations (right Jacobian ~ I)
+            n = pr.size
+            cc = layout.cols[idx]  # (n, 6) column of each local DOF, -1 if held
+            vals = np.broadcast_to(1.0 / pr.sigma, (n, 6)).copy()[:, :, None] * np.eye(6)[None]
+            diag = np.broadcast_to(np.eye(6, dtype=bool)[None], (n, 6, 6))
+            keep = diag & (np.broadcast_to(cc[:, None, :], (n, 6, 6)) >= 0)
+            rows = np.broadcast_to((row0 + np.arange(n * 6).reshape(n, 6))[:, :, None], (n, 6, 6))[keep]
+            cols = np.broadcast_to(cc[:, None, :], (n, 6, 6))[keep]
+            parts.append((vals, (keep, rows, cols, rows * max(layout.n_free, 1) + cols)))
+        row0 += pr.size * 6
     rvec = np.concatenate(r_parts) if r_parts else np.zeros(0)
     J = _scatter(parts, rvec.size, layout) if want_jac else None
     return rvec, J, cost, raw

@@ -19,6 +19,8 @@ from rigcal.errors import InputError
 from rigcal.sensors.camera import (
     CAMERA_MODELS,
     CameraModel,
+    DoubleSphereCamera,
+    KannalaBrandtCamera,
     PinholeCamera,
     RadtanCamera,
     make_camera,
@@ -43,6 +45,17 @@ CASES: list[tuple[str, Callable[[], CameraModel]]] = [
     (
         "radtan-pincushion-no-k3",
         lambda: RadtanCamera.from_intrinsics(800, 600, 900, 900, 400, 300, k1=0.08, k2=0.01),
+    ),
+    # one case each of the fisheye models (their modules' tests run the suite on more cases)
+    (
+        "kb-wide",
+        lambda: KannalaBrandtCamera.from_intrinsics(
+            1280, 960, 600, 602, 640.5, 480.2, k1=-0.02, k2=0.01, k3=-0.003, k4=0.0005
+        ),
+    ),
+    (
+        "ds-near-pinhole",
+        lambda: DoubleSphereCamera.from_intrinsics(640, 480, 500, 520, 330, 235, xi=0.02, alpha=0.05),
     ),
 ]
 

@@ -2,7 +2,10 @@
 
 * :mod:`~rigcal.sensors.camera.pinhole` - ``pinhole`` (fx, fy, cx, cy);
 * :mod:`~rigcal.sensors.camera.radtan` - ``radtan``: pinhole + plumb bob (k1, k2, p1, p2, k3),
-  OpenCV's default model.
+  OpenCV's default model;
+* :mod:`~rigcal.sensors.camera.kannala_brandt` - ``kannala_brandt`` (equidistant fisheye,
+  k1..k4, as OpenCV's fisheye model);
+* :mod:`~rigcal.sensors.camera.double_sphere` - ``double_sphere`` (xi, alpha; Usenko et al.).
 
 ``CAMERA_MODELS`` maps each model's ``name`` to its class; :func:`make_camera` builds one by
 name (how files and configurations refer to models).
@@ -16,12 +19,16 @@ import numpy as np
 
 from rigcal.errors import InputError
 from rigcal.sensors.camera.base import CameraModel
+from rigcal.sensors.camera.double_sphere import DoubleSphereCamera
+from rigcal.sensors.camera.kannala_brandt import KannalaBrandtCamera
 from rigcal.sensors.camera.pinhole import PinholeCamera
 from rigcal.sensors.camera.radtan import RadtanCamera
 
 CAMERA_MODELS: Mapping[str, type[CameraModel]] = {
     PinholeCamera.name: PinholeCamera,
     RadtanCamera.name: RadtanCamera,
+    KannalaBrandtCamera.name: KannalaBrandtCamera,
+    DoubleSphereCamera.name: DoubleSphereCamera,
 }
 
 
@@ -36,4 +43,12 @@ def make_camera(name: str, width: int, height: int, params: np.ndarray) -> Camer
     return cls(width, height, params)
 
 
-__all__ = ["CAMERA_MODELS", "CameraModel", "PinholeCamera", "RadtanCamera", "make_camera"]
+__all__ = [
+    "CAMERA_MODELS",
+    "CameraModel",
+    "DoubleSphereCamera",
+    "KannalaBrandtCamera",
+    "PinholeCamera",
+    "RadtanCamera",
+    "make_camera",
+]

@@ -12,7 +12,7 @@ from rigcal.geometry.so3 import matrix_from_rpy, so3_log
 from rigcal.problem.mocap import MocapOptions, MocapSensor, TargetObservation, calibrate_mocap
 from rigcal.sensors.camera.radtan import RadtanCamera
 
-R_OPT = np.array([[0, 0, 1], [-1, 0, 0], [0, -1, 0]], float).T  # optical frame in a body x-fwd frame
+R_OPT = np.array([[0, 0, 1], [-1, 0, 0], [0, -1, 0]], float)  # columns: optical x, y, z in a body x-fwd frame
 
 
 def _pose(xyz, rpy_deg, optical=False):
@@ -152,3 +152,85 @@ def test_bad_input_is_refused():
         calibrate_mocap(_sensors(), bad, _perturbed(rng))
     with pytest.raises(ConfigError, match="needs a camera model"):
         MocapSensor("c", SensorKind.CAMERA)
+
+
+# --------------------------------------------------------------------------- overlap and mixed
+
+OVERLAP_TRUTH = {
+    "lidar1": _pose([0.3, 0.0, 0.5], [0.5, -1.0, 2.0]),
+    "camera1": _pose([0.25, 0.1, 0.45], [0.0, 2.0, -3.0], optical=True),  # also looks forward
+}
+
+
+def _overlap_observations(rng, n, mcs_noise_m=0.00015, mcs_noise_rad=0.0005):
+    cam = _camera()
+    corners, inner = _diamond()
+    obs = []
+    for k in range(n):
+        centre = np.array([3.0 + rng.uniform(0, 1.5), rng.uniform(-0.5, 0.5), 0.5 + rng.uniform(-0.3, 0.3)])
+        z = np.array([-1.0, 0, 0]) + rng.normal(0, 0.2, 3)
+        z /= np.linalg.norm(z)
+        x = np.cross([0, 0, 1], z)
+        x /= np.linalg.norm(x)
+        R = np.column_stack([x, np.cross(z, x), z]) @ matrix_from_rpy(np.radians([0, 0, rng.uniform(-30, 30)]))
+        T_true = from_rt(R, centre)
+        T_mcs = T_true @ se3_exp(np.concatenate([rng.normal(0, mcs_noise_rad, 3), rng.normal(0, mcs_noise_m, 3)]))
+        t = int(k * 1e8)
+        for name, T_R_S in OVERLAP_TRUTH.items():
+            T_S_T = invert(T_R_S) @ T_true
+            if name == "camera1":
+                uv, ok = cam.project(inner @ T_S_T[:3, :3].T + T_S_T[:3, 3])
+                obs.append(TargetObservation(name, "diamond", t, T_mcs, uv + rng.normal(0, 0.2, uv.shape), inner))
+            else:
+                P = corners @ T_S_T[:3, :3].T + T_S_T[:3, 3]
+                obs.append(TargetObservation(name, "diamond", t + 1000, T_mcs, P + rng.normal(0, 0.002, P.shape), corners))
+    return obs
+
+
+def _relative_error(result):
+    T_lc = invert(result.sensors["lidar1"].T_reference_sensor) @ result.sensors["camera1"].T_reference_sensor
+    T_true = invert(OVERLAP_TRUTH["lidar1"]) @ OVERLAP_TRUTH["camera1"]
+    return float(np.linalg.norm(T_lc[:3, 3] - T_true[:3, 3]))
+
+
+def _overlap_sensors():
+    return [MocapSensor("lidar1", SensorKind.LIDAR, sigma=0.002), MocapSensor("camera1", SensorKind.CAMERA, _camera(), sigma=0.2)]
+
+
+def test_overlapping_views_share_target_poses_under_mcs_priors():
+    errs_fixed, errs_joint = [], []
+    for seed in range(3):
+        rng = np.random.default_rng(10 + seed)
+        obs = _overlap_observations(rng, 15, mcs_noise_m=0.002, mcs_noise_rad=0.002)  # a poor MCS
+        init = {k: T @ se3_exp(np.r_[np.radians(rng.uniform(-3, 3, 3)), rng.uniform(-0.02, 0.02, 3)]) for k, T in OVERLAP_TRUTH.items()}
+        fixed = calibrate_mocap(_overlap_sensors(), obs, init)
+        joint = calibrate_mocap(_overlap_sensors(), obs, init, options=MocapOptions(target_pose_sigma=(0.002, 0.002)))
+        errs_fixed.append(_relative_error(fixed))
+        errs_joint.append(_relative_error(joint))
+    # sharing the target pose between the two sensors' simultaneous views removes the MCS error
+    # from their relative pose
+    assert np.mean(errs_joint) < 0.5 * np.mean(errs_fixed), (errs_joint, errs_fixed)
+
+
+def test_mocap_and_board_placements_in_one_problem():
+    from rigcal.problem.calibrate import CalibrationOptions, calibrate
+    from rigcal.sim import SimSensor, make_rig_placements, simulate
+
+    sims = [
+        SimSensor("lidar1", SensorKind.LIDAR, OVERLAP_TRUTH["lidar1"], sigma_m=0.01),
+        SimSensor("camera1", SensorKind.CAMERA, OVERLAP_TRUTH["camera1"]),
+    ]
+    res = {"mocap": [], "boards": [], "mixed": []}
+    for seed in range(4):
+        rng = np.random.default_rng(40 + seed)
+        obs = _overlap_observations(rng, 5, mcs_noise_m=0.0015, mcs_noise_rad=0.0015)
+        init = {k: T @ se3_exp(np.r_[np.radians(rng.uniform(-3, 3, 3)), rng.uniform(-0.02, 0.02, 3)]) for k, T in OVERLAP_TRUTH.items()}
+        boards = simulate(sims, make_rig_placements(rng, sims, 10), rng=rng, reference="lidar1").dataset
+        res["mocap"].append(_relative_error(calibrate_mocap(_overlap_sensors(), obs, init)))
+        b = calibrate(boards, CalibrationOptions(mode="fcpe"))
+        T_lc = b.sensors["camera1"].T_reference_sensor
+        T_true = invert(OVERLAP_TRUTH["lidar1"]) @ OVERLAP_TRUTH["camera1"]
+        res["boards"].append(float(np.linalg.norm(T_lc[:3, 3] - T_true[:3, 3])))
+        res["mixed"].append(_relative_error(calibrate_mocap(_overlap_sensors(), obs, init, boards=boards)))
+    mean = {k: float(np.mean(v)) for k, v in res.items()}
+    assert mean["mixed"] <= min(mean["mocap"], mean["boards"]) * 1.05, mean

@@ -14,8 +14,10 @@ are matched to the target's template points by nearest neighbours after aligning
 (under the current calibration), the problem is solved, and correspondences are re-estimated
 until the calibration stops changing (paper III-D).
 
-Sensors that see the same target at the same time can add direct sensor-to-sensor terms, and
-circle-board placements (Domhof et al.) can join the same problem (:func:`board_batches`).
+With ``target_pose_sigma`` set, target poses are estimated too under a prior from the MCS
+(small per-target corrections); sensors that see the same target at the same time then share
+its pose - the direct sensor-to-sensor coupling of overlapping views. Circle-board placements
+(Domhof et al.) can join the same problem (``boards``).
 """
 
 from __future__ import annotations
@@ -34,7 +36,7 @@ from rigcal.geometry.se3 import invert
 from rigcal.geometry.so3 import so3_log
 from rigcal.problem.residuals import MODEL_CAMERA, MODEL_POINT
 from rigcal.problem.result import CalibrationResult, SensorEstimate
-from rigcal.problem.solver import Observations, PoseBlock, Problem, solve
+from rigcal.problem.solver import Observations, PoseBlock, PosePriors, Problem, solve
 from rigcal.problem.uncertainty import pose_std
 
 ROBOT = "robot"
@@ -114,6 +116,14 @@ class MocapOptions:
     rotation_tolerance_rad: float = 1e-7
     #: drop correspondences farther than this many sigma after alignment (0 = keep all)
     max_correspondence_sigma: float = 0.0
+    #: (rotation [rad], translation [m]) std of the MCS target poses: when set, every target
+    #: pose is estimated too (small per-target corrections under this prior), and observations
+    #: of one target by several sensors within ``sync_tolerance_ns`` share one pose - the
+    #: direct sensor-to-sensor coupling of overlapping views. None: MCS poses held exact.
+    target_pose_sigma: tuple[float, float] | None = None
+    sync_tolerance_ns: int = 5_000_000
+    #: circle-board detections' noise [m] when board placements join the problem
+    board_sigma_m: float = 0.01
 
 
 def _check(sensors: Sequence[MocapSensor], observations: Sequence[TargetObservation], initial, templates):
@@ -167,13 +177,41 @@ def _correspond(obs: TargetObservation, sensor: MocapSensor, T_R_S: np.ndarray, 
     return template[idx[j]][keep], keep
 
 
-def _build(sensors, observations, poses, templates, options):
+def _target_blocks(observations, options) -> list[int]:
+    """Index of the target pose block of every observation (shared when several sensors see one
+    target at the same time and target poses are estimated)."""
+    if options.target_pose_sigma is None:
+        return list(range(len(observations)))
+    order = sorted(range(len(observations)), key=lambda i: (observations[i].target, observations[i].t_ns))
+    out = [0] * len(observations)
+    current, last = -1, None
+    for i in order:
+        o = observations[i]
+        if last is None or o.target != last.target or o.t_ns - last.t_ns > options.sync_tolerance_ns:
+            current += 1
+            last = o
+        out[i] = current
+    return out
+
+
+def _build(sensors, observations, poses, templates, options, boards=None, block_poses=None):
     blocks = [PoseBlock(s.name, poses[s.name]) for s in sensors]
     per_sensor: dict[str, dict[str, list]] = {s.name: {"frame": [], "points": [], "measured": [], "board": []} for s in sensors}
     names = {s.name: s for s in sensors}
+    target_of = _target_blocks(observations, options)
+    free = options.target_pose_sigma is not None
+    made: dict[int, str] = {}
+    prior_blocks, prior_T = [], []
     for i, o in enumerate(observations):
-        block = f"obs:{i}"
-        blocks.append(PoseBlock(block, o.T_robot_target, (False,) * 6))
+        k = target_of[i]
+        block = f"target:{k}"
+        if k not in made:
+            made[k] = block
+            start = block_poses.get(block, o.T_robot_target) if block_poses else o.T_robot_target
+            blocks.append(PoseBlock(block, start, (free,) * 6))
+            if free:
+                prior_blocks.append(block)
+                prior_T.append(o.T_robot_target)
         if o.keypoints_target is not None:
             pts, meas = o.keypoints_target, o.measured
         else:
@@ -206,7 +244,24 @@ def _build(sensors, observations, poses, templates, options):
                 camera=s.camera,
             )
         )
-    return Problem(tuple(blocks), tuple(batches))
+    limits = []
+    if boards is not None:
+        from rigcal.problem.configurations import _pair_batches
+        from rigcal.problem.pairs import all_pairs, pair_data
+
+        for a, b in all_pairs(boards):
+            p = pair_data(boards, a, b)
+            if p is None or p.num_boards == 0:
+                continue
+            obs, lim = _pair_batches(p, boards)
+            batches.append(obs.with_sigma(np.full(obs.measured.shape[1], options.board_sigma_m)))
+            if lim is not None:
+                limits.append(lim)
+    priors = ()
+    if prior_blocks:
+        rot, trans = options.target_pose_sigma
+        priors = (PosePriors("mcs", tuple(prior_blocks), np.array(prior_T), np.array([rot] * 3 + [trans] * 3)),)
+    return Problem(tuple(blocks), tuple(batches), tuple(limits), priors)
 
 
 def calibrate_mocap(
@@ -215,23 +270,32 @@ def calibrate_mocap(
     initial: Mapping[str, np.ndarray],
     templates: Mapping[str, np.ndarray] | None = None,
     options: MocapOptions = MocapOptions(),
+    boards=None,
 ) -> CalibrationResult:
     """``T_robot_sensor`` for every sensor from MCS-tracked target observations.
 
     ``initial``: ``T_robot_sensor`` guesses (e.g. CAD or TF). ``templates``: target name ->
     (K, 3) template points in the target frame, for observations without correspondences.
+    ``boards``: an optional :class:`rigcal.dataset.Dataset` of circle-board placements seen by
+    these sensors (same names): their pairwise terms join the problem (Domhof et al.).
     Raises ConvergenceError when the correspondence iterations do not settle.
     """
     templates = {k: np.asarray(v, dtype=float) for k, v in (templates or {}).items()}
     _check(sensors, observations, initial, templates)
+    if boards is not None:
+        unknown = [n for n in boards.names if n not in {s.name for s in sensors}]
+        if unknown:
+            raise InputError(f"board dataset sensors {unknown} are not among the mocap sensors")
     t0 = time.perf_counter()
     poses = {s.name: np.asarray(initial[s.name], dtype=float) for s in sensors}
     needs_iterations = any(o.keypoints_target is None for o in observations)
     sol = None
     with threadpool_limits(limits=1):
+        block_poses: dict[str, np.ndarray] = {}
         for it in range(1, options.max_correspondence_iterations + 1):
-            prob = _build(sensors, observations, poses, templates, options)
+            prob = _build(sensors, observations, poses, templates, options, boards, block_poses)
             sol = solve(prob, loss=options.loss, loss_scale=options.loss_scale)
+            block_poses = {k: v for k, v in sol.poses.items() if k.startswith("target:")}
             if not sol.converged:
                 raise ConvergenceError(f"mocap calibration did not converge: {sol.status}")
             change_t = max(float(np.linalg.norm(sol.poses[s.name][:3, 3] - poses[s.name][:3, 3])) for s in sensors)
@@ -250,7 +314,7 @@ def calibrate_mocap(
             )
     assert sol is not None
     estimates, rmse, reproj = {}, {}, {}
-    by_sensor = {b.sensor: (b, r) for b, r in zip(prob.observations, sol.residuals)}
+    by_sensor = {b.sensor: (b, r) for b, r in zip(prob.observations, sol.residuals) if b.label.startswith(ROBOT)}
     for s in sensors:
         cov = sol.pose_covariance(s.name)
         estimates[s.name] = SensorEstimate(

@@ -1,0 +1,248 @@
+"""Writing and reading an absolute calibration (:class:`~rigcal.absolute.result.AbsoluteResult`).
+
+* ``absolute.yaml`` / ``absolute.json``: :meth:`AbsoluteResult.to_dict` - the body frame (name,
+  definition, ``T_external_body``, wheelbase, tracks, ground fit) and per sensor
+  ``T_body_sensor`` (4x4, ``p_body = T @ p_sensor``), ``xyz_m``, ``rpy_deg``, ``std``,
+  ``covariance``; floats at full precision (``repr``), so a read gives back the same numbers.
+  JSON is strict: NaN and infinities become ``null``.
+* launch files: ROS 1 ``absolute.launch`` and ROS 2 ``absolute.launch.py`` (or ``.sh``, YAML,
+  JSON) through :mod:`rigcal.io.tf_export`, one static transform per sensor frame with the
+  body frame as the parent (default ``base_link``; ``parent_frame`` renames it).
+
+:func:`read_absolute_yaml` / :func:`parse_absolute_yaml` read ``absolute.yaml`` (or the JSON)
+back into :class:`AbsoluteTransforms`: the body frame's name and ``{sensor frame: T_body_sensor}``.
+Every write is atomic; every text is built before anything is written.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+from typing import Any, Callable, Mapping, NamedTuple, Sequence
+
+import numpy as np
+import yaml
+
+from rigcal.absolute.result import AbsoluteResult
+from rigcal.errors import InputError
+from rigcal.io._text import load_yaml, read_text, type_name
+from rigcal.io.atomic import atomic_write_text
+from rigcal.io.tf_export import (
+    ros1_launch_text,
+    ros2_launch_py_text,
+    ros2_run_commands,
+    write_tf_export,
+)
+from rigcal.io.urdf import check_rigid
+
+__all__ = [
+    "ABSOLUTE_JSON_NAME",
+    "ABSOLUTE_YAML_NAME",
+    "AbsoluteTransforms",
+    "LAUNCH_NAMES",
+    "absolute_to_json_text",
+    "absolute_to_yaml_text",
+    "body_transforms",
+    "parse_absolute_yaml",
+    "read_absolute_yaml",
+    "write_absolute",
+    "write_absolute_launch",
+]
+
+ABSOLUTE_YAML_NAME = "absolute.yaml"
+ABSOLUTE_JSON_NAME = "absolute.json"
+#: Launch file names per tf_export format.
+LAUNCH_NAMES = {"ros1": "absolute.launch", "ros2": "absolute.launch.py", "sh": "absolute_tf.sh"}
+
+
+def _sh_text(transforms: Mapping[str, np.ndarray], parent: str) -> str:
+    return "#!/bin/sh\n" + "\n".join(ros2_run_commands(transforms, parent)) + "\n"
+
+
+_LAUNCH_TEXT: dict[str, Callable[[Mapping[str, np.ndarray], str], str]] = {
+    "ros1": ros1_launch_text,
+    "ros2": ros2_launch_py_text,
+    "sh": _sh_text,
+}
+
+
+class AbsoluteTransforms(NamedTuple):
+    """What :func:`read_absolute_yaml` returns: ``body_frame`` (the parent frame's name) and
+    ``transforms`` ``{sensor frame: T_body_sensor (4, 4)}`` in file order."""
+
+    body_frame: str
+    transforms: dict[str, np.ndarray]
+
+
+def _frame_name(name: Any, what: str) -> str:
+    if not isinstance(name, str) or not name or any(c.isspace() for c in name):
+        raise InputError(
+            f"{what}: frame name must be a non-empty string without whitespace, got {name!r}"
+        )
+    return name
+
+
+def _parent(result: AbsoluteResult, parent_frame: str | None) -> str:
+    return _frame_name(
+        result.body_frame if parent_frame is None else parent_frame, "body frame"
+    )
+
+
+def body_transforms(
+    result: AbsoluteResult, parent_frame: str | None = None
+) -> dict[str, np.ndarray]:
+    """``{sensor frame_id: T_body_sensor}`` for a TF export; InputError when two sensors share a
+    frame id or a frame is the body frame itself."""
+    if not isinstance(result, AbsoluteResult):
+        raise InputError(f"expected an AbsoluteResult, got {type(result).__name__}")
+    parent = _parent(result, parent_frame)
+    out: dict[str, np.ndarray] = {}
+    owner: dict[str, str] = {}
+    for name, est in result.sensors.items():
+        frame = _frame_name(est.frame_id, f"sensor '{name}'")
+        if frame in owner:
+            raise InputError(
+                f"sensors '{owner[frame]}' and '{name}' share the frame id '{frame}'; a TF tree "
+                "needs one frame per sensor"
+            )
+        if frame == parent:
+            raise InputError(
+                f"sensor '{name}': its frame id '{frame}' is the body frame's name; rename one"
+            )
+        owner[frame] = name
+        out[frame] = np.array(est.T_body_sensor, dtype=float)
+    if not out:
+        raise InputError("absolute result: no rig sensor to export")
+    return out
+
+
+def _dump_yaml(data: Any) -> str:
+    return yaml.safe_dump(
+        data, sort_keys=False, default_flow_style=None, allow_unicode=True, width=10_000
+    )
+
+
+def _renamed(result: AbsoluteResult, parent_frame: str | None) -> AbsoluteResult:
+    if parent_frame is None:
+        return result
+    return result.with_body_frame(_frame_name(parent_frame, "body frame"))
+
+
+def absolute_to_yaml_text(result: AbsoluteResult, parent_frame: str | None = None) -> str:
+    """``result.to_dict()`` as YAML (matrices as flow rows; floats exact, NaN as ``.nan``);
+    ``parent_frame`` renames the body frame."""
+    if not isinstance(result, AbsoluteResult):
+        raise InputError(f"expected an AbsoluteResult, got {type(result).__name__}")
+    res = _renamed(result, parent_frame)
+    body_transforms(res)  # refuse what could not be read back as a TF tree
+    return _dump_yaml(res.to_dict())
+
+
+def _json_safe(value: Any) -> Any:
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {str(k): _json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_safe(v) for v in value]
+    return value
+
+
+def absolute_to_json_text(result: AbsoluteResult, parent_frame: str | None = None) -> str:
+    """The same document as :func:`absolute_to_yaml_text` as strict, indented JSON (NaN and
+    infinities become ``null``, integer keys strings)."""
+    if not isinstance(result, AbsoluteResult):
+        raise InputError(f"expected an AbsoluteResult, got {type(result).__name__}")
+    res = _renamed(result, parent_frame)
+    body_transforms(res)
+    return json.dumps(_json_safe(res.to_dict()), indent=2, allow_nan=False) + "\n"
+
+
+def parse_absolute_yaml(text: str, source: str = ABSOLUTE_YAML_NAME) -> AbsoluteTransforms:
+    """The body frame's name and ``{sensor frame: T_body_sensor}`` from the text of an
+    ``absolute.yaml`` (or ``absolute.json``). Errors name ``source`` and the key at fault."""
+    data = load_yaml(text, source)
+    if not isinstance(data, dict):
+        raise InputError(
+            f"{source}: expected a mapping with 'body_frame' and 'sensors', got {type_name(data)}"
+        )
+    for key in ("body_frame", "sensors"):
+        if key not in data:
+            raise InputError(f"{source}: missing key '{key}'")
+    body = data["body_frame"]
+    if not isinstance(body, dict) or "name" not in body:
+        raise InputError(
+            f"{source}: body_frame: expected a mapping with 'name', got {type_name(body)}"
+        )
+    parent = _frame_name(body["name"], f"{source}: body_frame.name")
+    sensors = data["sensors"]
+    if not isinstance(sensors, dict) or not sensors:
+        raise InputError(
+            f"{source}: sensors: expected a non-empty mapping sensor -> entry, got "
+            f"{type_name(sensors)}"
+        )
+    out: dict[str, np.ndarray] = {}
+    for name, entry in sensors.items():
+        where = f"{source}: sensors.{name}"
+        if not isinstance(entry, dict):
+            raise InputError(f"{where}: expected a mapping, got {type_name(entry)}")
+        if "T_body_sensor" not in entry:
+            raise InputError(f"{where}: missing key 'T_body_sensor'")
+        frame = _frame_name(entry.get("frame_id", name), f"{where}.frame_id")
+        if frame in out:
+            raise InputError(f"{where}: frame '{frame}' appears twice")
+        if frame == parent:
+            raise InputError(f"{where}: frame '{frame}' is the body frame itself")
+        out[frame] = check_rigid(entry["T_body_sensor"], f"{where}.T_body_sensor")
+    return AbsoluteTransforms(parent, out)
+
+
+def read_absolute_yaml(path: str | os.PathLike[str]) -> AbsoluteTransforms:
+    """:func:`parse_absolute_yaml` of a file."""
+    p = Path(path)
+    return parse_absolute_yaml(read_text(p, "absolute calibration file"), str(p))
+
+
+def write_absolute_launch(
+    path: str | os.PathLike[str],
+    result: AbsoluteResult,
+    parent_frame: str | None = None,
+    fmt: str | None = None,
+) -> Path:
+    """One static-transform export of every sensor's ``T_body_sensor`` with the body frame as
+    the parent (``parent_frame`` overrides the result's name); ``fmt`` one of ros1, ros2, sh,
+    yaml, json (default: from the file name, see :func:`rigcal.io.tf_export.write_tf_export`)."""
+    parent = _parent(result, parent_frame)
+    return write_tf_export(path, body_transforms(result, parent), parent, fmt)
+
+
+def write_absolute(
+    result: AbsoluteResult,
+    out_dir: str | os.PathLike[str],
+    *,
+    parent_frame: str | None = None,
+    launch: Sequence[str] = ("ros1", "ros2"),
+) -> list[Path]:
+    """Write ``absolute.yaml``, ``absolute.json`` and one launch file per ``launch`` format
+    (``ros1`` -> ``absolute.launch``, ``ros2`` -> ``absolute.launch.py``, ``sh`` ->
+    ``absolute_tf.sh``) into ``out_dir`` (created if needed), each atomically; ``parent_frame``
+    renames the body frame everywhere. Returns the paths in that order."""
+    out = Path(out_dir)
+    if isinstance(launch, str):
+        launch = (launch,)
+    unknown = [f for f in launch if f not in LAUNCH_NAMES]
+    if unknown:
+        raise InputError(
+            f"launch formats {unknown} unknown (expected some of: {', '.join(LAUNCH_NAMES)})"
+        )
+    parent = _parent(result, parent_frame)
+    transforms = body_transforms(result, parent)
+    files: list[tuple[Path, str]] = [
+        (out / ABSOLUTE_YAML_NAME, absolute_to_yaml_text(result, parent)),
+        (out / ABSOLUTE_JSON_NAME, absolute_to_json_text(result, parent)),
+    ]
+    for fmt in dict.fromkeys(launch):
+        files.append((out / LAUNCH_NAMES[fmt], _LAUNCH_TEXT[fmt](transforms, parent)))
+    return [atomic_write_text(p, text) for p, text in files]

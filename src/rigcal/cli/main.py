@@ -86,6 +86,36 @@ def _parser() -> argparse.ArgumentParser:
     t.add_argument("--rig", required=True, metavar="RIG_YAML", help="sensors, topics and detector settings")
     t.add_argument("--out", required=True, metavar="DIR", help="output folder for rig.yaml + CSVs")
 
+    a = sub.add_parser(
+        "absolute",
+        help="calibrate every sensor to the vehicle body with an external laser scan",
+        description="Relates the rig to the body frame (Domhof et al. III-E): the external "
+        "scanner is one more sensor of the board dataset (its detections of the placements it "
+        "saw), so the joint calibration gives T_external_sensor for every rig sensor; wheel-rim "
+        "labels (circle fits), single wheel-centre labels or markers in the external scan, plus "
+        "the ground plane, give the body frame (origin below the rear axle centre, X forward, "
+        "Y left, Z up); then T_body_sensor = T_body_external T_external_sensor. Writes "
+        "absolute.yaml/.json and launch files.",
+        epilog="example:\n  rigcal absolute rig.yaml --external leica --scan car_scan.pcd "
+        "--labels wheels.yaml --out absolute/",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    a.add_argument("manifest", help="rig.yaml with the rig sensors AND the external scanner's detections")
+    a.add_argument("--external", required=True, metavar="NAME", help="the external scanner's sensor name in the manifest")
+    a.add_argument("--scan", required=True, metavar="CLOUD", help="external scan of the vehicle (PCD/PLY/NPY), external frame")
+    a.add_argument("--labels", required=True, metavar="FILE", help="labels YAML/CSV: wheel rims/centres or markers")
+    a.add_argument("--method", default="circle", choices=["circle", "single", "markers"])
+    a.add_argument("--origin", default="rear_axle", choices=["rear_axle", "front_axle", "wheelbase_centre"])
+    a.add_argument("--mode", default="fcpe", choices=["mcpe", "fcpe", "pse"])
+    a.add_argument("--body-frame", default="base_link", help="name of the body frame (default base_link)")
+    a.add_argument("--label-sigma-mm", type=float, help="label noise, to include the body frame's uncertainty")
+    a.add_argument(
+        "--ground-check", action="append", default=[], metavar="SENSOR=CLOUD",
+        help="a sensor's scan of flat ground: report the angle of its ground normal in the body frame (eq. 13)",
+    )
+    a.add_argument("--out", required=True, metavar="DIR")
+    a.add_argument("--json", action="store_true", help="print absolute.json on stdout")
+
     u = sub.add_parser(
         "urdf",
         help="write calibrated sensor poses into a URDF",
@@ -301,6 +331,67 @@ def _cmd_detect(args, console) -> int:
     return 0
 
 
+def _cmd_absolute(args, console) -> int:
+    import math
+
+    from rich.table import Table
+
+    from rigcal.absolute.evaluate import ground_normal_angle
+    from rigcal.absolute.labels import parse_labels_csv, parse_labels_yaml
+    from rigcal.absolute.pipeline import absolute_calibration
+    from rigcal.errors import InputError
+    from rigcal.io._text import read_text
+    from rigcal.io.absolute_io import absolute_to_json_text, write_absolute
+    from rigcal.io.manifest import load_manifest
+    from rigcal.io.pointcloud import read_point_cloud
+
+    dataset = load_manifest(args.manifest)
+    text = read_text(args.labels, "labels file")
+    labels = (parse_labels_csv if args.labels.lower().endswith(".csv") else parse_labels_yaml)(text, args.labels)
+    scan = read_point_cloud(args.scan, sensor=args.external).points_xyz
+    checks = []
+    for item in args.ground_check:
+        if "=" not in item:
+            raise InputError(f"--ground-check {item!r}: expected SENSOR=CLOUD")
+        name, path = item.split("=", 1)
+        dataset.sensor(name)  # names the sensors if unknown
+        checks.append((name, read_point_cloud(path, sensor=name).points_xyz))
+    result = absolute_calibration(
+        dataset, args.external, labels, scan, args.method, args.origin, args.mode,
+        body_frame=args.body_frame,
+        label_sigma_m=None if args.label_sigma_mm is None else args.label_sigma_mm / 1000.0,
+    )
+    ground = {name: ground_normal_angle(pts, result.T_body_sensor(name)) for name, pts in checks}
+    write_absolute(result, args.out)
+    if args.json:
+        sys.stdout.write(absolute_to_json_text(result) + "\n")
+    b = result.body
+    console.print(
+        f"body frame '{result.body_frame}' ({args.origin}) from {args.method} labels: wheelbase "
+        f"{b.wheelbase_m:.4f} m, tracks {b.track_rear_m:.4f} / {b.track_front_m:.4f} m, ground rms "
+        f"{b.ground.rms_m * 1000:.1f} mm"
+    )
+    table = Table(title=f"T_body_sensor (body frame {result.body_frame})")
+    for col in ("sensor", "x (m)", "y (m)", "z (m)", "roll", "pitch", "yaw (deg)", "std xyz (mm)", "std rpy (deg)"):
+        table.add_column(col)
+    for name, est in result.sensors.items():
+        x, y, z = est.xyz_m
+        r, p, yw = est.rpy_deg
+        s_ = est.std
+        table.add_row(
+            name, f"{x:.4f}", f"{y:.4f}", f"{z:.4f}", f"{r:.3f}", f"{p:.3f}", f"{yw:.3f}",
+            "/".join(f"{s_[k] * 1000:.1f}" for k in ("x_m", "y_m", "z_m")),
+            "/".join(f"{s_[k]:.3f}" for k in ("roll_deg", "pitch_deg", "yaw_deg")),
+        )
+    console.print(table)
+    for name, g in ground.items():
+        console.print(f"ground check {name}: normal {math.degrees(g.angle_rad):.3f} deg from body Z")
+    for w in result.warnings:
+        console.print(f"[yellow]warning:[/yellow] {w}")
+    console.print(f"written to {args.out}/ (absolute.yaml, absolute.json, launch files)")
+    return 0
+
+
 def _cmd_urdf(args, console) -> int:
     from rigcal.errors import InputError
     from rigcal.io.calibration_files import read_calibration_transforms
@@ -433,6 +524,8 @@ def run(argv: Sequence[str] | None = None) -> int:
             return _cmd_calibrate(args, console)
         if args.command == "detect":
             return _cmd_detect(args, console)
+        if args.command == "absolute":
+            return _cmd_absolute(args, console)
         if args.command == "urdf":
             return _cmd_urdf(args, console)
         if args.command == "export":

@@ -49,7 +49,8 @@ def parse_calibration_transforms(text: str, source: str) -> CalibrationTransform
             "or 'sensors' with T_reference_sensor (rigcal calibration.yaml) or T_body_sensor (absolute.yaml)"
         )
     if "body_frame" in data:
-        parent = str(data["body_frame"])
+        bf = data["body_frame"]
+        parent = str(bf.get("name", "base_link")) if isinstance(bf, dict) else str(bf)
         out = {}
         for name, entry in sensors.items():
             if not isinstance(entry, dict) or "T_body_sensor" not in entry:

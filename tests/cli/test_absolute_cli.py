@@ -1,0 +1,81 @@
+"""`rigcal absolute`: files in, body-frame calibration out (simulated vehicle with truth)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import yaml
+
+from rigcal.absolute.labels import format_labels_yaml
+from rigcal.cli.main import run
+from rigcal.dataset import SensorKind
+from rigcal.geometry.se3 import invert
+from rigcal.io.calibration_files import read_calibration_transforms
+from rigcal.io.manifest import write_dataset
+from rigcal.io.pointcloud import write_pcd
+from rigcal.recording import PointCloudFrame
+from rigcal.sim.rig import SimSensor, make_rig_placements, simulate
+from rigcal.sim.vehicle import ExternalScanner, SimVehicle, simulate_external_scan, simulate_rim_labels
+
+VEHICLE = SimVehicle()
+SCANNER = ExternalScanner()
+
+
+@pytest.fixture(scope="module")
+def inputs(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("absolute")
+    ext = SimSensor(
+        "leica", SensorKind.LIDAR, SCANNER.T_body_stations[0], sigma_m=0.002,
+        max_azimuth_deg=180.0, max_elevation_deg=60.0, min_elevation_deg=-60.0, max_range_m=30.0,
+    )
+    boards = make_rig_placements(0, VEHICLE.sensors, 20)
+    sim = simulate(VEHICLE.sensors + (ext,), boards, rng=0)
+    manifest = write_dataset(sim.dataset, tmp / "dataset")
+    scan = simulate_external_scan(VEHICLE, SCANNER, rng=1)
+    write_pcd(tmp / "scan.pcd", PointCloudFrame("leica", 0, scan.points_external), data="binary")
+    labels = simulate_rim_labels(VEHICLE, scan.T_external_body, 0, n_points=10, sigma_m=0.002)
+    (tmp / "labels.yaml").write_text(format_labels_yaml(labels))
+    return tmp, manifest, sim
+
+
+def test_absolute_writes_body_frame_calibration_close_to_truth(inputs, capsys):
+    tmp, manifest, sim = inputs
+    out = tmp / "out"
+    code = run([
+        "absolute", str(manifest), "--external", "leica", "--scan", str(tmp / "scan.pcd"),
+        "--labels", str(tmp / "labels.yaml"), "--out", str(out),
+    ])
+    assert code == 0, capsys.readouterr().err
+    cal = read_calibration_transforms(out / "absolute.yaml")
+    assert cal.kind == "absolute" and cal.parent_frame == "base_link"
+    truth = {s.name: s.T_rig_sensor for s in VEHICLE.sensors}  # rig frame = body frame here
+    for name in ("lidar1", "camera1"):
+        T = cal.transforms[name]
+        assert np.linalg.norm(T[:3, 3] - truth[name][:3, 3]) < 0.02, name
+    text = capsys.readouterr().out
+    assert "T_body_sensor" in text and "wheelbase" in text
+
+
+def test_labels_missing_a_wheel_is_one_line_and_writes_nothing(inputs, capsys):
+    tmp, manifest, _ = inputs
+    data = yaml.safe_load((tmp / "labels.yaml").read_text())
+    data.pop(next(k for k in data if "rear_left" in k))
+    bad = tmp / "bad_labels.yaml"
+    bad.write_text(yaml.safe_dump(data))
+    out = tmp / "out_bad"
+    code = run([
+        "absolute", str(manifest), "--external", "leica", "--scan", str(tmp / "scan.pcd"),
+        "--labels", str(bad), "--out", str(out),
+    ])
+    err = capsys.readouterr().err
+    assert code == 1 and "rear_left" in err and "Traceback" not in err
+    assert not out.exists()
+
+
+def test_unknown_external_sensor(inputs, capsys):
+    tmp, manifest, _ = inputs
+    code = run([
+        "absolute", str(manifest), "--external", "faro", "--scan", str(tmp / "scan.pcd"),
+        "--labels", str(tmp / "labels.yaml"), "--out", str(tmp / "o2"),
+    ])
+    assert code == 1 and "faro" in capsys.readouterr().err

@@ -116,6 +116,24 @@ def _parser() -> argparse.ArgumentParser:
     a.add_argument("--out", required=True, metavar="DIR")
     a.add_argument("--json", action="store_true", help="print absolute.json on stdout")
 
+    m = sub.add_parser(
+        "mocap",
+        help="calibrate lidars and cameras to the robot with a motion-capture system",
+        description="Charron et al.: the motion-capture system tracks the robot and the targets; "
+        "every sensor frame where a target is expected in view and standing still is cropped "
+        "around it, the target is extracted (lidar: clustering + ICP of its template; camera: "
+        "checkerboard corners or the cylinder's colour contour), and all sensors are calibrated "
+        "to the robot frame in one problem - no overlap between sensors needed. Writes "
+        "calibration.yaml (T_robot_sensor), extrinsics.json, diagnostics.csv (every measurement "
+        "kept or rejected and why) and overlay images. The config format is in docs/mocap.md.",
+        epilog="example:\n  rigcal mocap mocap.yaml --out mocap_out/",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    m.add_argument("config", metavar="CONFIG.yaml")
+    m.add_argument("--out", required=True, metavar="DIR")
+    m.add_argument("--json", action="store_true", help="print the result as JSON on stdout")
+    m.add_argument("--max-overlays", type=int, default=None, metavar="N", help="overlay images per sensor")
+
     u = sub.add_parser(
         "urdf",
         help="write calibrated sensor poses into a URDF",
@@ -229,6 +247,8 @@ def _summary(result, console) -> None:
             "-" if cv is None else f"{cv * 1000:.2f}",
             "-" if worst is None else f"#{worst[0]}: {worst[1] * 1000:.1f} mm",
         )
+    for pair, v in result.reprojection_px.items():
+        e.add_row(pair, f"{v:.3f} px (reprojection)", "-", "-")
     console.print(e)
     if result.outliers:
         console.print("outliers (excluded): " + "; ".join(f"{s}: boards {list(b)}" for s, b in result.outliers.items()))
@@ -392,6 +412,35 @@ def _cmd_absolute(args, console) -> int:
     return 0
 
 
+def _cmd_mocap(args, console) -> int:
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress
+    from rich.table import Table
+
+    from rigcal.io.results import result_to_json_text
+    from rigcal.mocap.config import load_mocap_config
+    from rigcal.mocap.pipeline import SUMMARY_COLUMNS, run_mocap, summary_rows, write_mocap_outputs
+
+    config = load_mocap_config(args.config)
+    with Progress(
+        "[progress.description]{task.description}", BarColumn(), MofNCompleteColumn(),
+        console=console, transient=not console.is_terminal,
+    ) as bar:
+        task = bar.add_task("extracting", total=None)
+        run = run_mocap(config, progress=lambda d, t: bar.update(task, completed=d, total=t))
+    write_mocap_outputs(run, args.out, max_overlays=args.max_overlays)
+    if args.json:
+        sys.stdout.write(result_to_json_text(run.result) + "\n")
+    table = Table(title="measurements per sensor")
+    for col in SUMMARY_COLUMNS:
+        table.add_column(col)
+    for row in summary_rows(run):
+        table.add_row(*(f"{v:.4g}" if isinstance(v, float) else str(v) for v in row))
+    console.print(table)
+    _summary(run.result, console)
+    console.print(f"results written to {args.out}/")
+    return 0
+
+
 def _cmd_urdf(args, console) -> int:
     from rigcal.errors import InputError
     from rigcal.io.calibration_files import read_calibration_transforms
@@ -526,6 +575,8 @@ def run(argv: Sequence[str] | None = None) -> int:
             return _cmd_detect(args, console)
         if args.command == "absolute":
             return _cmd_absolute(args, console)
+        if args.command == "mocap":
+            return _cmd_mocap(args, console)
         if args.command == "urdf":
             return _cmd_urdf(args, console)
         if args.command == "export":

@@ -1,0 +1,643 @@
+"""The motion-capture calibration pipeline: recording + MCS poses -> ``T_robot_sensor``.
+
+Charron et al., section III, end to end:
+
+1. read the MCS pose streams: the robot ``T_M_R`` and every target ``T_M_T``
+   (:mod:`rigcal.mocap.streams`), and the initial extrinsics ``T_robot_sensor``
+   (``robot_frame`` <- the sensor's ``frame_id``, :mod:`rigcal.mocap.extrinsics`);
+2. step through the recording's sensor frames in time order; for every frame and target:
+
+   * **pose**: ``T_M_R`` and ``T_M_T`` interpolated at the frame's stamp; a time before, after
+     or inside a gap of a stream (longer than ``max_gap_s``) is rejected as ``no_pose_data``;
+   * **guidance** (III-C): the expected pose ``T_sensor_target = inv(T_robot_sensor_initial)
+     @ inv(T_M_R) @ T_M_T``; rejected as ``target_not_in_view`` when the target is not
+     expected in the sensor's view, then as ``target_moving`` when the target moves relative to
+     the robot faster than the limits within the motion window (or ``no_pose_data`` when the
+     streams do not cover that window);
+   * **extraction**: the camera extractor (checkerboard corners, or the coloured silhouette)
+     or the lidar extractor (crop, cluster, ICP) of :mod:`rigcal.extract`, searching around the
+     expected pose; failures keep the extractor's reason code;
+   * a kept measurement becomes a :class:`~rigcal.problem.mocap.TargetObservation`: with known
+     correspondences when the extractor orders its keypoints (``keypoint_index``: checkerboard
+     corners, diamond corners), template-based otherwise (cylinder);
+
+3. :func:`~rigcal.problem.mocap.calibrate_mocap` from the initial extrinsics;
+4. per kept measurement, the residual under the initial and the final calibration: the RMS
+   distance [m] (lidar) or reprojection error [px] (camera) between the measured keypoints and
+   their target keypoints placed by the MCS; without correspondences, the distance to the
+   nearest template point (3D, or projected into the image).
+
+A sensor without any kept measurement, or a target no sensor measured, is an InputError that
+lists the rejection reasons. :func:`write_mocap_outputs` writes the result files
+(:func:`rigcal.io.results.write_results`), ``extrinsics.json`` (the original tool's format,
+``robot_frame`` <- ``frame_id``), ``diagnostics.csv`` (one row per frame and target) and
+overlay images (:mod:`rigcal.report.overlay`).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import logging
+import math
+import os
+from collections import Counter
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from types import MappingProxyType
+from typing import Any, Callable, Mapping
+
+import numpy as np
+
+from rigcal.dataset import SensorKind
+from rigcal.errors import InputError
+from rigcal.extract.guidance import camera_view, lidar_view, motion_check
+from rigcal.extract.result import NO_CLUSTER, NO_CONTOUR, NO_POSE_DATA, ExtractionFailure
+from rigcal.geometry.se3 import invert, transform_points
+from rigcal.geometry.so3 import so3_log
+from rigcal.mocap.config import MocapConfig, PoseSourceSpec, SensorSpec, TargetSpec
+from rigcal.mocap.extrinsics import Extrinsics
+from rigcal.mocap.streams import PoseStream, interpolate
+from rigcal.problem.mocap import MocapSensor, TargetObservation, calibrate_mocap
+from rigcal.problem.result import CalibrationResult
+from rigcal.report.overlay import OverlayInput
+from rigcal.targets.definition import Target
+
+__all__ = [
+    "DIAGNOSTICS_COLUMNS",
+    "DIAGNOSTICS_NAME",
+    "KEPT",
+    "SUMMARY_COLUMNS",
+    "MeasurementDiagnostic",
+    "MocapRun",
+    "diagnostics_csv_text",
+    "observation_residual",
+    "read_mocap_streams",
+    "run_mocap",
+    "summary_rows",
+    "write_mocap_outputs",
+]
+
+log = logging.getLogger(__name__)
+
+KEPT = "kept"
+DIAGNOSTICS_NAME = "diagnostics.csv"
+EXTRINSICS_NAME = "extrinsics.json"
+OVERLAY_DIR = "overlays"
+_NS = 1_000_000_000
+_OVERLAY_MIN_MOVE_M = 0.1
+_OVERLAY_MIN_TURN_RAD = math.radians(5.0)
+
+DIAGNOSTICS_COLUMNS = (
+    "sensor", "kind", "t_ns", "t_s", "target", "status", "reason", "keypoints",
+    "correspondences", "residual_initial", "residual_final", "unit", "detail",
+)
+"""Columns of ``diagnostics.csv`` (``t_s`` is seconds since the first frame)."""
+
+SUMMARY_COLUMNS = (
+    "sensor", "kind", "frames", "kept", "rejected", "rejections", "residual_initial",
+    "residual_final", "unit", "change_mm", "change_deg",
+)
+"""Columns of :func:`summary_rows`."""
+
+
+# --------------------------------------------------------------------------------------------
+# values
+
+
+@dataclass(frozen=True)
+class MeasurementDiagnostic:
+    """What happened to one target in one sensor frame.
+
+    ``status`` is ``"kept"`` or ``"rejected"``; ``reason`` a code of
+    :data:`rigcal.extract.result.REASONS` (empty when kept) and ``detail`` a sentence with the
+    numbers seen. For kept measurements: ``keypoints`` measured, ``correspondences`` (True:
+    keypoints matched by index; False: template-based), and the RMS residual under the
+    initial and the final calibration in ``unit`` (``m`` lidar, ``px`` camera)."""
+
+    sensor: str
+    kind: str
+    t_ns: int
+    target: str
+    status: str
+    reason: str = ""
+    detail: str = ""
+    keypoints: int = 0
+    correspondences: bool = False
+    residual_initial: float = math.nan
+    residual_final: float = math.nan
+    unit: str = ""
+
+    @property
+    def kept(self) -> bool:
+        return self.status == KEPT
+
+
+@dataclass(frozen=True, eq=False)  # holds arrays: compare by identity
+class MocapRun:
+    """Everything :func:`run_mocap` produced.
+
+    ``result``: the calibration (reference ``robot``); ``initial`` and :attr:`final`:
+    ``T_robot_sensor`` (4, 4) per sensor; ``observations``: the kept measurements (in frame
+    order, the same order as the kept rows of ``diagnostics``); ``diagnostics``: one row per
+    sensor frame and target; ``frames``: frames read per sensor; ``overlays``: the
+    measurements kept for overlay images (a few per sensor, at distinct target poses);
+    ``mocap_frame``: the MCS frame's name when the streams give it."""
+
+    config: MocapConfig
+    result: CalibrationResult
+    initial: Mapping[str, np.ndarray]
+    observations: tuple[TargetObservation, ...]
+    diagnostics: tuple[MeasurementDiagnostic, ...]
+    frames: Mapping[str, int]
+    overlays: tuple[OverlayInput, ...] = ()
+    mocap_frame: str = ""
+    first_t_ns: int = 0
+
+    @property
+    def final(self) -> dict[str, np.ndarray]:
+        return {n: np.asarray(e.T_reference_sensor, dtype=float).copy()
+                for n, e in self.result.sensors.items()}
+
+    @property
+    def counts(self) -> dict[str, dict[str, int]]:
+        """sensor -> {``"kept"`` or a rejection reason: number of (frame, target) rows}."""
+        out: dict[str, dict[str, int]] = {s.name: {} for s in self.config.sensors}
+        for d in self.diagnostics:
+            key = KEPT if d.kept else d.reason
+            out[d.sensor][key] = out[d.sensor].get(key, 0) + 1
+        return out
+
+
+# --------------------------------------------------------------------------------------------
+# reading the MCS
+
+
+def _where(config: MocapConfig, label: str, spec: PoseSourceSpec) -> str:
+    return f"{config.source}: mocap.{label} ({spec.describe()})"
+
+
+def read_mocap_streams(config: MocapConfig) -> tuple[PoseStream, dict[str, PoseStream]]:
+    """The robot's pose stream and every target's (by target name), from the sources the
+    configuration names; errors name the configuration key. All streams must share one mocap
+    frame when their frame ids are known."""
+    specs: dict[str, tuple[str, PoseSourceSpec]] = {"robot": ("robot", config.robot)}
+    for name, t in config.targets.items():
+        specs[f"target:{name}"] = (f"targets.{name}", t.pose)
+    streams: dict[str, PoseStream] = {}
+    topics = {k: s.topic for k, (_, s) in specs.items() if s.kind == "topic"}
+    if topics:
+        from rigcal.io.bag import open_recording
+        from rigcal.mocap.streams import POSE_MSGTYPES, read_pose_topics
+
+        with open_recording(config.recording) as rec:
+            available = rec.topics()
+        for k, topic in topics.items():
+            msgtype = available.get(topic)
+            if msgtype not in POSE_MSGTYPES:
+                label, spec = specs[k]
+                poses = sorted(t for t, ty in available.items() if ty in POSE_MSGTYPES)
+                what = ("not in the recording" if msgtype is None
+                        else f"has type {msgtype}, expected one of {', '.join(POSE_MSGTYPES)}")
+                raise InputError(f"{_where(config, label, spec)}: topic {topic} {what} "
+                                 f"({config.recording}; pose topics: {poses or 'none'})")
+        try:
+            streams.update(read_pose_topics(config.recording, topics))
+        except InputError as exc:
+            labels = ", ".join(f"mocap.{specs[k][0]}" for k in topics)
+            raise InputError(f"{config.source}: {labels}: {exc}") from None
+    by_parent: dict[str | None, dict[str, str]] = {}
+    for k, (_, s) in specs.items():
+        if s.kind == "tf":
+            by_parent.setdefault(s.parent, {})[k] = s.child
+    for parent, children in by_parent.items():
+        from rigcal.mocap.streams import read_tf_streams
+
+        try:
+            streams.update(read_tf_streams(config.recording, children, parent,
+                                           max_gap_s=config.max_gap_s))
+        except InputError as exc:
+            labels = ", ".join(f"mocap.{specs[k][0]}" for k in children)
+            raise InputError(f"{config.source}: {labels}: {exc}") from None
+    for k, (label, s) in specs.items():
+        if s.kind == "csv":
+            from rigcal.mocap.streams import read_pose_csv
+
+            try:
+                assert s.path is not None
+                streams[k] = read_pose_csv(s.path, name=k, time_unit=s.time_unit)
+            except InputError as exc:
+                raise InputError(f"{_where(config, label, s)}: {exc}") from None
+    frames = {specs[k][0]: st.frame_id for k, st in streams.items() if st.frame_id}
+    if len(set(frames.values())) > 1:
+        raise InputError(
+            f"{config.source}: the mocap streams are given in different frames ("
+            + ", ".join(f"mocap.{k}: '{v}'" for k, v in frames.items())
+            + "); every pose must be in the same mocap frame"
+        )
+    robot = streams.pop("robot")
+    return robot, {k.split(":", 1)[1]: v for k, v in streams.items()}
+
+
+def _initial_extrinsics(config: MocapConfig) -> Extrinsics:
+    if config.initial is not None:
+        return config.initial
+    from rigcal.mocap.extrinsics import read_extrinsics_from_bag
+
+    try:
+        return read_extrinsics_from_bag(config.recording)
+    except InputError as exc:
+        raise InputError(f"{config.source}: initial_calibration not given and the recording's "
+                         f"static TF cannot serve: {exc}") from None
+
+
+# --------------------------------------------------------------------------------------------
+# one frame, one target
+
+
+class _PoseLookup:
+    """Interpolated MCS poses with the reason a time has none."""
+
+    def __init__(self, stream: PoseStream, label: str, max_gap_s: float) -> None:
+        self.stream = stream
+        self.label = label
+        self.max_gap_s = max_gap_s
+
+    def at(self, t_ns: int) -> tuple[np.ndarray | None, str]:
+        T, ok = interpolate(self.stream, np.array([t_ns], dtype=np.int64), self.max_gap_s)
+        if ok[0]:
+            return T[0], ""
+        try:
+            self.stream.at(t_ns, self.max_gap_s)
+        except InputError as exc:
+            return None, f"{self.label}: {exc}"
+        return None, f"{self.label}: no pose at t = {t_ns} ns"  # pragma: no cover
+
+    def times(self, lo: int, hi: int) -> np.ndarray:
+        t = self.stream.t_ns
+        return t[(t > lo) & (t < hi)]
+
+
+@dataclass
+class _Context:
+    config: MocapConfig
+    robot: _PoseLookup
+    targets: dict[str, _PoseLookup]
+    initial: dict[str, np.ndarray]
+    prepared: dict[str, Any] = field(default_factory=dict)
+
+
+def _motion(ctx: _Context, t_ns: int, target: str) -> tuple[bool, str, str]:
+    ex = ctx.config.extraction
+    half = int(round(ex.motion_window_s * 0.5 * _NS))
+    lo, hi = t_ns - half, t_ns + half
+    tl = ctx.targets[target]
+    times = np.unique(np.concatenate([[lo, t_ns, hi], ctx.robot.times(lo, hi),
+                                      tl.times(lo, hi)]).astype(np.int64))
+    T_mr, ok_r = interpolate(ctx.robot.stream, times, ctx.robot.max_gap_s)
+    T_mt, ok_t = interpolate(tl.stream, times, tl.max_gap_s)
+    bad = ~(ok_r & ok_t)
+    if np.any(bad):
+        k = int(np.flatnonzero(bad)[0])
+        lookup = ctx.robot if not ok_r[k] else tl
+        _, why = lookup.at(int(times[k]))
+        return False, NO_POSE_DATA, (
+            f"the +-{ex.motion_window_s / 2:g} s motion window around t = {t_ns} ns is not "
+            f"covered: {why}"
+        )
+    T_rt = invert(T_mr) @ T_mt
+    check = motion_check(t_ns, times, T_rt, ex.motion_window_s, ex.max_linear_mps,
+                         ex.max_angular_radps)
+    return check.still, check.reason, check.detail
+
+
+def _expected_view(sensor: SensorSpec, target: Target, T_st: np.ndarray, ctx: _Context):
+    ex = ctx.config.extraction
+    if sensor.kind is SensorKind.CAMERA:
+        return camera_view(sensor.camera, T_st, target.camera_points,
+                           min_fraction=ex.camera_min_fraction_in_view)
+    spec = sensor.lidar
+    assert spec is not None
+    return lidar_view(T_st, target.template, spec.min_range_m, spec.max_range_m,
+                      spec.elevation_fov_rad, spec.azimuth_fov_rad,
+                      ex.lidar_min_fraction_in_view)
+
+
+def _extract(frame: Any, sensor: SensorSpec, target: Target, T_st: np.ndarray, ctx: _Context):
+    ex = ctx.config.extraction
+    unc = ex.uncertainty
+    if sensor.kind is SensorKind.CAMERA:
+        from rigcal.extract.camera import extract_target_camera
+
+        opts: dict[str, Any] = dict(uncertainty=unc, sensor=sensor.name, t_ns=frame.t_ns)
+        if ex.crop_margin_px is not None:
+            opts["crop_margin_px"] = ex.crop_margin_px
+        if target.kind.value == "checkerboard_diamond":
+            opts["estimate_pose"] = ex.estimate_pose
+        return extract_target_camera(frame, sensor.camera, target, T_st, **opts)
+    from rigcal.extract.icp import prepare_template
+    from rigcal.extract.lidar import extract_target_lidar
+
+    if target.name not in ctx.prepared:
+        ctx.prepared[target.name] = prepare_template(target.template)
+    return extract_target_lidar(
+        frame, target, T_st, ctx.prepared[target.name], lidar=sensor.lidar, uncertainty=unc,
+        crop_pad_m=ex.crop_pad_m, on_template_m=ex.on_template_m,
+        min_cluster_points=ex.min_cluster_points,
+        min_fraction_in_view=ex.lidar_min_fraction_in_view, sensor=sensor.name,
+        t_ns=frame.t_ns,
+    )
+
+
+def _process(frame: Any, sensor: SensorSpec, tspec: TargetSpec, ctx: _Context):
+    """(diagnostic, observation or None, measurement or None) of one target in one frame."""
+    t = int(frame.t_ns)
+    target = tspec.target
+    row = dict(sensor=sensor.name, kind=sensor.kind.value, t_ns=t, target=tspec.name)
+
+    def reject(reason: str, detail: str):
+        return MeasurementDiagnostic(status="rejected", reason=reason, detail=detail, **row), \
+            None, None
+
+    T_mr, why = ctx.robot.at(t)
+    if T_mr is None:
+        return reject(NO_POSE_DATA, why)
+    T_mt, why = ctx.targets[tspec.name].at(t)
+    if T_mt is None:
+        return reject(NO_POSE_DATA, why)
+    T_rt = invert(T_mr) @ T_mt
+    T_st = invert(ctx.initial[sensor.name]) @ T_rt
+    view = _expected_view(sensor, target, T_st, ctx)
+    if not view.visible:
+        return reject(view.reason, f"expected pose: {view.detail}")
+    still, reason, detail = _motion(ctx, t, tspec.name)
+    if not still:
+        return reject(reason, detail)
+    m = _extract(frame, sensor, target, T_st, ctx)
+    if isinstance(m, ExtractionFailure):
+        return reject(m.reason, m.detail)
+    if len(m.keypoints) == 0:
+        return reject(NO_CONTOUR if sensor.kind is SensorKind.CAMERA else NO_CLUSTER,
+                      "the extractor returned no keypoints")
+    keypoints_target = None
+    if m.keypoint_index is not None:
+        source = (target.camera_keypoints if sensor.kind is SensorKind.CAMERA
+                  else target.lidar_keypoints)
+        if source is not None:
+            keypoints_target = source[m.keypoint_index]
+    obs = TargetObservation(sensor.name, tspec.name, t, T_rt, m.keypoints, keypoints_target)
+    diag = MeasurementDiagnostic(status=KEPT, keypoints=len(m.keypoints),
+                                 correspondences=keypoints_target is not None,
+                                 unit="px" if sensor.kind is SensorKind.CAMERA else "m", **row)
+    return diag, obs, m
+
+
+# --------------------------------------------------------------------------------------------
+# residuals
+
+
+def observation_residual(obs: TargetObservation, sensor: SensorSpec, target: Target,
+                         T_robot_sensor: np.ndarray) -> float:
+    """RMS residual of one observation under ``T_robot_sensor``: [m] for a lidar, [px] for a
+    camera (see the module docstring; nearest template point without correspondences)."""
+    from scipy.spatial import cKDTree
+
+    T_st = invert(np.asarray(T_robot_sensor, dtype=float)) @ obs.T_robot_target
+    pts = obs.keypoints_target if obs.keypoints_target is not None else target.template
+    X = transform_points(T_st, pts)
+    if sensor.kind is SensorKind.CAMERA:
+        uv, _ = sensor.camera.project(X)
+        ok = np.all(np.isfinite(uv), axis=1)
+        if obs.keypoints_target is not None:
+            if not np.all(ok):
+                return math.nan
+            e = np.linalg.norm(obs.measured - uv, axis=1)
+        else:
+            if not np.any(ok):
+                return math.nan
+            e, _ = cKDTree(uv[ok]).query(obs.measured)
+    elif obs.keypoints_target is not None:
+        e = np.linalg.norm(obs.measured - X, axis=1)
+    else:
+        e, _ = cKDTree(X).query(obs.measured)
+    return float(np.sqrt(np.mean(np.square(e))))
+
+
+# --------------------------------------------------------------------------------------------
+# the run
+
+
+def _rejection_text(counts: Counter) -> str:
+    if not counts:
+        return "no frames"
+    return ", ".join(f"{r}: {n}" for r, n in counts.most_common())
+
+
+def _overlay_wanted(chosen: list[OverlayInput], T_rt: np.ndarray, limit: int) -> bool:
+    if len(chosen) >= limit:
+        return False
+    for c in chosen:
+        d = float(np.linalg.norm(c.T_robot_target[:3, 3] - T_rt[:3, 3]))
+        a = float(np.linalg.norm(so3_log(c.T_robot_target[:3, :3].T @ T_rt[:3, :3])))
+        if d < _OVERLAY_MIN_MOVE_M and a < _OVERLAY_MIN_TURN_RAD:
+            return False
+    return True
+
+
+def run_mocap(config: MocapConfig, progress: Callable[[int, int], None] | None = None
+              ) -> MocapRun:
+    """Run the pipeline of the module docstring; ``progress(done, total)`` is called after
+    every sensor frame. Raises InputError for unreadable inputs, a sensor without any kept
+    measurement or a target no sensor measured (with the rejection counts), and
+    ConvergenceError when the calibration does not converge."""
+    from rigcal.io.folder import open_any
+
+    robot_stream, target_streams = read_mocap_streams(config)
+    extrinsics = _initial_extrinsics(config)
+    initial = config.initial_T_robot_sensor(extrinsics)
+    ctx = _Context(
+        config=config,
+        robot=_PoseLookup(robot_stream, "mocap.robot", config.max_gap_s),
+        targets={n: _PoseLookup(s, f"mocap.targets.{n}", config.max_gap_s)
+                 for n, s in target_streams.items()},
+        initial=initial,
+    )
+    sensors = {s.name: s for s in config.sensors}
+    diagnostics: list[MeasurementDiagnostic] = []
+    observations: list[TargetObservation] = []
+    overlays: dict[str, list[OverlayInput]] = {s: [] for s in sensors}
+    frames_read: Counter = Counter()
+    first_t: int | None = None
+    with open_any(config.recording) as rec:
+        plan = {}
+        total = 0
+        for s in config.sensors:
+            try:
+                total += rec.count(s.topic)
+            except InputError as exc:
+                raise InputError(f"{config.source}: sensor '{s.name}' (topic {s.topic}): {exc}"
+                                 ) from None
+            plan[s.name] = (s.topic, s.kind)
+        done = 0
+        for frame in rec.frames(plan):
+            sensor = sensors[frame.sensor]
+            frames_read[sensor.name] += 1
+            first_t = frame.t_ns if first_t is None else min(first_t, frame.t_ns)
+            for tspec in config.targets.values():
+                diag, obs, m = _process(frame, sensor, tspec, ctx)
+                diagnostics.append(diag)
+                if obs is None:
+                    continue
+                observations.append(obs)
+                if _overlay_wanted(overlays[sensor.name], obs.T_robot_target,
+                                   config.overlays_per_sensor):
+                    camera = sensor.kind is SensorKind.CAMERA
+                    points = None
+                    if not camera:
+                        cluster = m.extras.get("cluster_points")
+                        points = np.array(cluster if cluster is not None else m.keypoints)
+                    overlays[sensor.name].append(OverlayInput(
+                        sensor=sensor.name, kind=sensor.kind.value, target=tspec.target,
+                        t_ns=obs.t_ns, T_robot_target=obs.T_robot_target,
+                        measured=obs.measured,
+                        image=np.array(frame.image) if camera else None,
+                        camera=sensor.camera if camera else None, points_sensor=points,
+                    ))
+            done += 1
+            if progress is not None:
+                progress(done, total)
+
+    by_sensor = {s: Counter() for s in sensors}
+    by_target = {t: Counter() for t in config.targets}
+    for d in diagnostics:
+        if not d.kept:
+            by_sensor[d.sensor][d.reason] += 1
+            by_target[d.target][d.reason] += 1
+    kept_sensor = Counter(o.sensor for o in observations)
+    kept_target = Counter(o.target for o in observations)
+    for name, spec in sensors.items():
+        if frames_read[name] == 0:
+            raise InputError(f"{config.source}: sensor '{name}': no frames on topic "
+                             f"{spec.topic} in {config.recording}")
+        if kept_sensor[name] == 0:
+            raise InputError(
+                f"{config.source}: sensor '{name}': every measurement was rejected "
+                f"({frames_read[name]} frames x {len(config.targets)} targets; rejections: "
+                f"{_rejection_text(by_sensor[name])}); nothing to calibrate it with"
+            )
+    for name in config.targets:
+        if kept_target[name] == 0:
+            raise InputError(
+                f"{config.source}: target '{name}' was never extracted by any sensor: "
+                f"rejections {_rejection_text(by_target[name])}"
+            )
+
+    mocap_sensors = [
+        MocapSensor(s.name, s.kind, camera=s.camera, sigma=s.sigma, frame_id=s.frame_id)
+        for s in config.sensors
+    ]
+    templates = {n: t.target.template for n, t in config.targets.items()}
+    result = calibrate_mocap(mocap_sensors, observations, initial, templates, config.options)
+    final = {n: e.T_reference_sensor for n, e in result.sensors.items()}
+
+    it = iter(observations)
+    filled = []
+    for d in diagnostics:
+        if d.kept:
+            obs = next(it)
+            s, tgt = sensors[d.sensor], config.targets[d.target].target
+            d = replace(d,
+                        residual_initial=observation_residual(obs, s, tgt, initial[d.sensor]),
+                        residual_final=observation_residual(obs, s, tgt, final[d.sensor]))
+        filled.append(d)
+    return MocapRun(
+        config=config,
+        result=result,
+        initial=MappingProxyType({k: np.array(v) for k, v in initial.items()}),
+        observations=tuple(observations),
+        diagnostics=tuple(filled),
+        frames=MappingProxyType(dict(frames_read)),
+        overlays=tuple(o for s in sensors for o in overlays[s]),
+        mocap_frame=robot_stream.frame_id,
+        first_t_ns=int(first_t or 0),
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# outputs
+
+
+def _fmt(x: float) -> str:
+    return "" if not math.isfinite(x) else repr(float(x))
+
+
+def diagnostics_csv_text(run: MocapRun) -> str:
+    """``diagnostics.csv`` text: a header of :data:`DIAGNOSTICS_COLUMNS`, one row per sensor
+    frame and target in frame order; residuals empty for rejected rows."""
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(DIAGNOSTICS_COLUMNS)
+    for d in run.diagnostics:
+        w.writerow([
+            d.sensor, d.kind, d.t_ns, f"{(d.t_ns - run.first_t_ns) / _NS:.6f}", d.target,
+            d.status, d.reason, d.keypoints if d.kept else "",
+            ("keypoints" if d.correspondences else "template") if d.kept else "",
+            _fmt(d.residual_initial), _fmt(d.residual_final), d.unit, d.detail,
+        ])
+    return buf.getvalue()
+
+
+def _rms(values: list[float]) -> float:
+    v = np.array([x for x in values if math.isfinite(x)])
+    return float(np.sqrt(np.mean(v**2))) if v.size else math.nan
+
+
+def summary_rows(run: MocapRun) -> list[tuple]:
+    """One row per sensor, columns :data:`SUMMARY_COLUMNS`: frames read, kept and rejected
+    (frame, target) rows, the rejections by reason (``"reason: n, ..."``), the RMS residual
+    over kept measurements under the initial and the final calibration (in ``unit``), and how
+    far the calibration moved from the initial one [mm, deg]."""
+    rows = []
+    final = run.final
+    for s in run.config.sensors:
+        mine = [d for d in run.diagnostics if d.sensor == s.name]
+        kept = [d for d in mine if d.kept]
+        rej = Counter(d.reason for d in mine if not d.kept)
+        T0, T1 = run.initial[s.name], final[s.name]
+        rows.append((
+            s.name, s.kind.value, int(run.frames.get(s.name, 0)), len(kept), len(mine) - len(kept),
+            _rejection_text(rej) if rej else "",
+            _rms([d.residual_initial for d in kept]), _rms([d.residual_final for d in kept]),
+            "px" if s.kind is SensorKind.CAMERA else "m",
+            float(np.linalg.norm(T1[:3, 3] - T0[:3, 3]) * 1e3),
+            math.degrees(float(np.linalg.norm(so3_log(T0[:3, :3].T @ T1[:3, :3])))),
+        ))
+    return rows
+
+
+def write_mocap_outputs(run: MocapRun, out_dir: str | os.PathLike[str],
+                        max_overlays: int | None = None) -> list[Path]:
+    """Write the result files (:func:`rigcal.io.results.write_results`), ``extrinsics.json``
+    (``robot_frame`` <- each sensor's ``frame_id``, the original tool's layout),
+    ``diagnostics.csv`` and up to ``max_overlays`` (default: the configuration's
+    ``overlays_per_sensor``) overlay PNGs per sensor in ``overlays/``; every file atomically.
+    Returns the written paths."""
+    from rigcal.io.atomic import atomic_write_text
+    from rigcal.io.results import write_results
+    from rigcal.mocap.extrinsics import write_extrinsics_json
+    from rigcal.report.overlay import write_overlays
+
+    out = Path(out_dir)
+    limit = run.config.overlays_per_sensor if max_overlays is None else int(max_overlays)
+    paths = list(write_results(run.result, out))
+    final = run.final
+    ext = Extrinsics(
+        {(run.config.robot_frame, s.frame_id): final[s.name] for s in run.config.sensors},
+        str(out / EXTRINSICS_NAME),
+        {"type": "extrinsic_calibration", "method": "rigcal mocap"},
+    )
+    paths.append(write_extrinsics_json(out / EXTRINSICS_NAME, ext))
+    paths.append(atomic_write_text(out / DIAGNOSTICS_NAME, diagnostics_csv_text(run)))
+    if limit > 0:
+        paths += write_overlays(run.overlays, run.initial, final, out / OVERLAY_DIR, limit)
+    return paths

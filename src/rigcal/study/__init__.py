@@ -1,0 +1,15 @@
+"""Studies that reproduce a paper's experiments on simulated raw data and print its tables.
+
+* :mod:`~rigcal.study.mocap_study` - Charron et al.'s simulated motion-capture calibration
+  (Tables I-III): diamond and cylinder targets, VLP-16 lidar and pinhole camera.
+"""
+
+from rigcal.study.mocap_study import (
+    PAPER_TABLES,
+    StudyRow,
+    StudyTable,
+    TrialResult,
+    run_mocap_study,
+)
+
+__all__ = ["PAPER_TABLES", "StudyRow", "StudyTable", "TrialResult", "run_mocap_study"]

@@ -47,3 +47,17 @@ def test_mocap_cli_bad_config_is_one_line(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.startswith("rigcal: error:") and "Traceback" not in err
     assert not (tmp_path / "o").exists()
+
+
+def test_study_mocap_prints_the_table_next_to_the_paper(capsys):
+    assert run(["study", "mocap", "--trials", "1", "--measurements", "5"]) == 0
+    out = capsys.readouterr().out
+    assert "Table I" in out and "paper trans" in out
+
+
+def test_study_mocap_bad_option_is_a_usage_error(capsys):
+    import pytest
+
+    with pytest.raises(SystemExit) as exc:
+        run(["study", "mocap", "--target", "sphere"])
+    assert exc.value.code == 2

@@ -134,6 +134,28 @@ def _parser() -> argparse.ArgumentParser:
     m.add_argument("--json", action="store_true", help="print the result as JSON on stdout")
     m.add_argument("--max-overlays", type=int, default=None, metavar="N", help="overlay images per sensor")
 
+    st = sub.add_parser(
+        "study",
+        help="reproducible studies of the papers' experiments",
+        description="Reproducible studies of the papers' simulated experiments.",
+    )
+    st_sub = st.add_subparsers(dest="study", metavar="STUDY")
+    from rigcal.study.mocap_study import EPILOG as _STUDY_EPILOG
+    from rigcal.study.mocap_study import add_arguments as _study_arguments
+
+    _study_arguments(
+        st_sub.add_parser(
+            "mocap",
+            help="Charron et al. Tables I-III: simulated motion-capture calibration",
+            description="Reproduce Charron et al.'s simulated motion-capture calibration study "
+            "(Tables I-III): simulated VLP-16 scans or camera images of the diamond or cylinder "
+            "target, extraction, calibration from a perturbed start, many seeded trials; prints "
+            "the table next to the paper's numbers.",
+            epilog=_STUDY_EPILOG,
+            formatter_class=argparse.RawDescriptionHelpFormatter,
+        )
+    )
+
     u = sub.add_parser(
         "urdf",
         help="write calibrated sensor poses into a URDF",
@@ -577,6 +599,14 @@ def run(argv: Sequence[str] | None = None) -> int:
             return _cmd_absolute(args, console)
         if args.command == "mocap":
             return _cmd_mocap(args, console)
+        if args.command == "study":
+            if args.study != "mocap":
+                parser.parse_args(["study", "--help"])
+            from rigcal.study.mocap_study import run as run_study
+
+            text, code = run_study(args)
+            (sys.stdout if code == 0 else sys.stderr).write(text + "\n")
+            return code
         if args.command == "urdf":
             return _cmd_urdf(args, console)
         if args.command == "export":

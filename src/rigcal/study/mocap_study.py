@@ -48,7 +48,7 @@ import numpy as np
 
 from rigcal.dataset import SensorKind
 from rigcal.errors import ConvergenceError, GeometryError, InputError, RigcalError
-from rigcal.geometry.se3 import from_rt, invert, transform_points
+from rigcal.geometry.se3 import from_rt, invert, se3_exp, transform_points
 from rigcal.geometry.so3 import matrix_from_rpy, so3_log
 from rigcal.problem.mocap import MocapOptions, MocapSensor, TargetObservation, calibrate_mocap
 from rigcal.sim.mocap import (
@@ -62,6 +62,7 @@ from rigcal.sim.mocap import (
     paper_rig,
     paper_targets,
     simulate_mocap,
+    target_centre,
 )
 from rigcal.targets.definition import Target, TargetKind
 
@@ -454,8 +455,6 @@ def closest_surface_points(target: Target, points_target: np.ndarray) -> np.ndar
         best = np.argmin(d, axis=0)
         return np.choose(best[:, None], cands)
     if target.kind is TargetKind.CHECKERBOARD_DIAMOND and {"side_m", "square_m", "rows", "cols"} <= set(target.dims):
-        from rigcal.sim.mocap import target_centre
-
         c = target_centre(target)
         half = float(target.dims["side_m"]) / 2
         dx, dy = p[:, 0] - c[0], p[:, 1] - c[1]
@@ -477,8 +476,6 @@ def refine_point_to_surface(obs: Sequence[TargetObservation], target: Target, T_
     all observations at once, with no centroid alignment. Least squares over the right
     perturbation of ``T_robot_sensor`` (robust ``loss`` at 3 ``sigma_m``)."""
     from scipy.optimize import least_squares
-
-    from rigcal.geometry.se3 import se3_exp
 
     T0 = np.asarray(T_robot_sensor, dtype=float)
     T_tr = [invert(o.T_robot_target) for o in obs]
@@ -508,8 +505,12 @@ def _calibrate(obs, kind, rig: MocapRig, target: Target, T_init, T_true, trial, 
     t0 = time.perf_counter()
     try:
         refine = correspondences == "nearest" and bool(templates) and kind == LIDAR
-        if refine:  # the refinement needs only a start: let the paper's matching settle longer
-            options = dataclasses.replace(options, max_correspondence_iterations=max(options.max_correspondence_iterations, 100))
+        if refine:  # the refinement needs only a start: the paper's matching may stop early
+            options = dataclasses.replace(
+                options, max_correspondence_iterations=max(options.max_correspondence_iterations, 100),
+                translation_tolerance_m=max(options.translation_tolerance_m, 1e-4),
+                rotation_tolerance_rad=max(options.rotation_tolerance_rad, 1e-4),
+            )
         res = calibrate_mocap([sensor], obs, {name: T_init}, templates, options)
         T = res.sensors[name].T_reference_sensor
         if refine:

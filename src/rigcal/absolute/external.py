@@ -44,13 +44,8 @@ from rigcal.detect.result import DetectionResult
 from rigcal.errors import InputError
 from rigcal.geometry.se3 import as_rigid as _check_rigid
 from rigcal.recording import PointCloudFrame
-from rigcal.sim.raw.scene import (
-    SURFACE_GROUND,
-    SURFACE_PLATE,
-    SURFACE_WALL,
-    Scene,
-    trace_planes,
-)
+from rigcal.sim.raw.lidar import range_returns
+from rigcal.sim.raw.scene import Scene, check_sim_call
 
 __all__ = [
     "AngularWindow",
@@ -208,19 +203,10 @@ def scan_dense(
     ``rng`` whatever is hit, so a seed reproduces the scan. More than :data:`MAX_RAYS` rays is an
     InputError (use a coarser step or a smaller window).
     """
-    if not isinstance(model, DenseScannerModel):
-        raise InputError(
-            f"scan_dense '{sensor}': model must be a DenseScannerModel, got {type(model).__name__}"
-        )
-    if not isinstance(scene, Scene):
-        raise InputError(
-            f"scan_dense '{sensor}': scene must be a Scene, got {type(scene).__name__}"
-        )
-    if not isinstance(rng, np.random.Generator):
-        raise InputError(
-            f"scan_dense '{sensor}': rng must be a numpy.random.Generator, got {type(rng).__name__}"
-        )
-    T = _check_rigid(T_world_scanner, f"scan_dense '{sensor}': T_world_scanner")
+    T = check_sim_call(
+        f"scan_dense '{sensor}'", model, DenseScannerModel, scene, rng, T_world_scanner,
+        "T_world_scanner",
+    )
     win = (
         board_window(T, scene, model.window_margin_deg) if window is None else _check_window(window)
     )
@@ -244,24 +230,7 @@ def scan_dense(
         np.broadcast_arrays(ce * np.cos(az)[None, :], ce * np.sin(az)[None, :], se), axis=-1
     ).reshape(-1, 3)
     noise = rng.standard_normal(n)
-    planes = scene.planes_in(np.linalg.inv(T))
-    du = np.ascontiguousarray(dirs.T)
-    tr = trace_planes(
-        planes, scene.plate_bounds_board, scene.board, (0.0, 0.0, 0.0), du[0], du[1], du[2],
-        max_t=model.max_range_m, need_uv=False,
-    )
-    cos_inc = np.abs(tr.ndotd)
-    keep = (
-        (tr.sid >= 0)
-        & (tr.t >= model.min_range_m)
-        & (cos_inc >= math.cos(math.radians(model.max_incidence_deg)))
-    )
-    rng_m = tr.t[keep] + model.range_sigma_m * noise[keep]
-    pts = dirs[keep] * rng_m[:, None]
-    refl = np.array(
-        [scene.material(s).reflectivity for s in (SURFACE_PLATE, SURFACE_WALL, SURFACE_GROUND)]
-    )
-    intensity = (255.0 * refl[tr.sid[keep].astype(np.intp)] * cos_inc[keep]).astype(np.float32)
+    pts, intensity, _ = range_returns(model, T, scene, dirs, noise)
     return PointCloudFrame(
         sensor=sensor,
         t_ns=t_ns,

@@ -31,7 +31,7 @@ from rigcal.sim.raw.scene import (
     SURFACE_PLATE,
     SURFACE_WALL,
     Scene,
-    _check_rigid,
+    check_sim_call,
     trace_planes,
 )
 
@@ -168,19 +168,29 @@ def scan(
     :class:`~rigcal.recording.PointCloudFrame` in the lidar frame with ``ring`` and
     ``intensity`` fields. Draws exactly ``model.num_rays`` normals from ``rng`` (whatever is
     hit), so a seed reproduces the scan."""
-    if not isinstance(model, LidarModel):
-        raise InputError(f"scan '{sensor}': model must be a LidarModel, got {type(model).__name__}")
-    if not isinstance(scene, Scene):
-        raise InputError(f"scan '{sensor}': scene must be a Scene, got {type(scene).__name__}")
-    if not isinstance(rng, np.random.Generator):
-        raise InputError(
-            f"scan '{sensor}': rng must be a numpy.random.Generator, got {type(rng).__name__}"
-        )
-    T = _check_rigid(T_world_lidar, f"scan '{sensor}': T_world_lidar")
+    T = check_sim_call(f"scan '{sensor}'", model, LidarModel, scene, rng, T_world_lidar, "T_world_lidar")
     dirs, rings = _cached_rays(model)
     noise = rng.standard_normal(dirs.shape[0])
-    # cast in the lidar frame: move the scene's planes instead of every ray
-    planes = scene.planes_in(np.linalg.inv(T))
+    pts, intensity, keep = range_returns(model, T, scene, dirs, noise)
+    return PointCloudFrame(
+        sensor=sensor,
+        t_ns=t_ns,
+        points_xyz=pts,
+        fields={"ring": rings[keep], "intensity": intensity},
+        frame_id=frame_id or sensor,
+    )
+
+
+def range_returns(model, T_world_sensor, scene, dirs, noise):
+    """Returns of unit rays ``dirs`` (N, 3) from a range scanner at ``T_world_sensor``.
+
+    ``model`` gives ``min_range_m``, ``max_range_m``, ``range_sigma_m`` and
+    ``max_incidence_deg``; ``noise`` (N,) standard-normal draws (drawn by the caller so a seed
+    reproduces the scan). Returns (points (M, 3) in the sensor frame, intensity (M,) float32,
+    keep (N,) mask of the rays that returned).
+    """
+    # cast in the sensor frame: move the scene's planes instead of every ray
+    planes = scene.planes_in(np.linalg.inv(T_world_sensor))
     du = np.ascontiguousarray(dirs.T)
     tr = trace_planes(
         planes, scene.plate_bounds_board, scene.board, (0.0, 0.0, 0.0), du[0], du[1], du[2],
@@ -198,10 +208,4 @@ def scan(
         [scene.material(sid).reflectivity for sid in (SURFACE_PLATE, SURFACE_WALL, SURFACE_GROUND)]
     )
     intensity = (255.0 * refl[tr.sid[keep].astype(np.intp)] * cos_inc[keep]).astype(np.float32)
-    return PointCloudFrame(
-        sensor=sensor,
-        t_ns=t_ns,
-        points_xyz=pts,
-        fields={"ring": rings[keep], "intensity": intensity},
-        frame_id=frame_id or sensor,
-    )
+    return pts, intensity, keep

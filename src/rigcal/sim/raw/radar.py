@@ -30,7 +30,7 @@ import numpy as np
 
 from rigcal.errors import InputError
 from rigcal.recording import RadarFrame
-from rigcal.sim.raw.scene import Scene, _check_rigid
+from rigcal.sim.raw.scene import Scene, _check_rigid, check_sim_call
 
 
 def _interval(value, what: str) -> tuple[float, float]:
@@ -170,19 +170,9 @@ def detections(
     frame_id: str = "",
 ) -> RadarFrame:
     """One frame of detections (reflector if visible, plus clutter) in the radar frame."""
-    if not isinstance(model, RadarModel):
-        raise InputError(
-            f"detections '{sensor}': model must be a RadarModel, got {type(model).__name__}"
-        )
-    if not isinstance(scene, Scene):
-        raise InputError(
-            f"detections '{sensor}': scene must be a Scene, got {type(scene).__name__}"
-        )
-    if not isinstance(rng, np.random.Generator):
-        raise InputError(
-            f"detections '{sensor}': rng must be a numpy.random.Generator, got {type(rng).__name__}"
-        )
-    T = _check_rigid(T_world_radar, f"detections '{sensor}': T_world_radar")
+    T = check_sim_call(
+        f"detections '{sensor}'", model, RadarModel, scene, rng, T_world_radar, "T_world_radar"
+    )
     r, az, el, visible = _reflector_geometry(model, T, scene)
     # fixed draw order and count: reflector noise (4), clutter (4 per detection), permutation
     n_refl = rng.standard_normal(4)

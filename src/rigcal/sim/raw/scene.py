@@ -408,3 +408,19 @@ def texture_tile(seed: int, surface: int) -> np.ndarray:
     tile = tile.astype(np.float32)
     tile.setflags(write=False)
     return tile
+
+
+def check_sim_call(where: str, model, model_type: type, scene, rng, T_world_sensor, what: str) -> np.ndarray:
+    """Validate a simulator call's arguments (model type, Scene, numpy Generator, rigid pose);
+    returns the pose as a read-only rigid (4, 4). Errors are InputError prefixed with ``where``."""
+    if not isinstance(model, model_type):
+        raise InputError(
+            f"{where}: model must be a {model_type.__name__}, got {type(model).__name__}"
+        )
+    if not isinstance(scene, Scene):
+        raise InputError(f"{where}: scene must be a Scene, got {type(scene).__name__}")
+    if not isinstance(rng, np.random.Generator):
+        raise InputError(
+            f"{where}: rng must be a numpy.random.Generator, got {type(rng).__name__}"
+        )
+    return _check_rigid(T_world_sensor, f"{where}: {what}")

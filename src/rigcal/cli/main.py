@@ -3,13 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import sys
 from pathlib import Path
 from typing import Sequence
-
-import numpy as np
 
 from rigcal import __version__
 from rigcal.errors import RigcalError
@@ -216,36 +213,24 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
-def _load_initial(path: str) -> dict[str, np.ndarray]:
-    import yaml
+def _progress_bar(console, eta: bool = False):
+    """The progress bar every long command shows (transient when not on a terminal)."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn
 
-    from rigcal.errors import InputError
-
-    try:
-        data = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read initial guesses: {exc.strerror}") from None
-    except yaml.YAMLError as exc:
-        raise InputError(f"{path}: malformed YAML: {exc}") from None
-    sensors = data.get("sensors") if isinstance(data, dict) else None
-    if not isinstance(sensors, dict):
-        raise InputError(f"{path}: expected a calibration.yaml with a 'sensors' mapping")
-    out = {}
-    for name, entry in sensors.items():
-        T = np.asarray((entry or {}).get("T_reference_sensor"), dtype=float)
-        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-            raise InputError(f"{path}: sensors.{name}.T_reference_sensor must be a 4x4 matrix")
-        out[str(name)] = T
-    return out
+    columns = ["[progress.description]{task.description}", BarColumn(), MofNCompleteColumn()]
+    if eta:
+        columns.append(TimeRemainingColumn())
+    return Progress(*columns, console=console, transient=not console.is_terminal)
 
 
-def _summary(result, console) -> None:
+def _pose_table(title: str, estimates, rpy_std_decimals: int = 2):
+    """A table of sensor poses (x y z, roll pitch yaw) with their standard deviations."""
     from rich.table import Table
 
-    t = Table(title=f"{result.mode.upper()} - reference {result.reference}")
+    t = Table(title=title)
     for col in ("sensor", "x (m)", "y (m)", "z (m)", "roll", "pitch", "yaw (deg)", "std xyz (mm)", "std rpy (deg)"):
         t.add_column(col, justify="right" if col != "sensor" else "left")
-    for name, est in result.sensors.items():
+    for name, est in estimates.items():
         x, y, z = est.xyz_m
         r, p, yw = est.rpy_deg
         s = est.std
@@ -253,8 +238,15 @@ def _summary(result, console) -> None:
             name,
             f"{x:.4f}", f"{y:.4f}", f"{z:.4f}", f"{r:.3f}", f"{p:.3f}", f"{yw:.3f}",
             "/".join(f"{s[k] * 1000:.1f}" for k in ("x_m", "y_m", "z_m")),
-            "/".join(f"{s[k]:.2f}" for k in ("roll_deg", "pitch_deg", "yaw_deg")),
+            "/".join(f"{s[k]:.{rpy_std_decimals}f}" for k in ("roll_deg", "pitch_deg", "yaw_deg")),
         )
+    return t
+
+
+def _summary(result, console) -> None:
+    from rich.table import Table
+
+    t = _pose_table(f"{result.mode.upper()} - reference {result.reference}", result.sensors)
     console.print(t)
     e = Table(title="errors between sensors")
     for col in ("pair", "RMSE (mm)", "cross-val RMSE (mm)", "worst board"):
@@ -287,6 +279,7 @@ def _summary(result, console) -> None:
 
 def _cmd_calibrate(args, console) -> int:
     from rigcal.errors import InputError
+    from rigcal.io.calibration_files import read_initial_poses
     from rigcal.io.ignore import read_ignore_file
     from rigcal.io.manifest import dataset_from_files, load_manifest
     from rigcal.io.results import result_to_json_text, write_results
@@ -314,7 +307,7 @@ def _cmd_calibrate(args, console) -> int:
         reference=args.reference,
         detect_outliers=not args.keep_outliers,
         hold_radar_plane=args.hold_radar_plane,
-        initial=_load_initial(args.initial) if args.initial else None,
+        initial=read_initial_poses(args.initial) if args.initial else None,
         cross_validation_folds=args.cv_folds,
     )
     result = calibrate(dataset, options)
@@ -331,7 +324,6 @@ def _cmd_calibrate(args, console) -> int:
 
 
 def _detect(recording_path: str, rig_path: str, console):
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn
     from rich.table import Table
 
     from rigcal.detect.pipeline import run_detection
@@ -339,14 +331,7 @@ def _detect(recording_path: str, rig_path: str, console):
     from rigcal.io.rig_config import load_rig_config
 
     rig = load_rig_config(rig_path)
-    with open_any(recording_path) as rec, Progress(
-        "[progress.description]{task.description}",
-        BarColumn(),
-        MofNCompleteColumn(),
-        TimeRemainingColumn(),
-        console=console,
-        transient=not console.is_terminal,
-    ) as bar:
+    with open_any(recording_path) as rec, _progress_bar(console, eta=True) as bar:
         task = bar.add_task("detecting", total=None)
 
         def progress(done: int, total: int) -> None:
@@ -375,8 +360,6 @@ def _cmd_detect(args, console) -> int:
 
 def _cmd_absolute(args, console) -> int:
     import math
-
-    from rich.table import Table
 
     from rigcal.absolute.evaluate import ground_normal_angle
     from rigcal.absolute.labels import parse_labels_csv, parse_labels_yaml
@@ -413,18 +396,9 @@ def _cmd_absolute(args, console) -> int:
         f"{b.wheelbase_m:.4f} m, tracks {b.track_rear_m:.4f} / {b.track_front_m:.4f} m, ground rms "
         f"{b.ground.rms_m * 1000:.1f} mm"
     )
-    table = Table(title=f"T_body_sensor (body frame {result.body_frame})")
-    for col in ("sensor", "x (m)", "y (m)", "z (m)", "roll", "pitch", "yaw (deg)", "std xyz (mm)", "std rpy (deg)"):
-        table.add_column(col)
-    for name, est in result.sensors.items():
-        x, y, z = est.xyz_m
-        r, p, yw = est.rpy_deg
-        s_ = est.std
-        table.add_row(
-            name, f"{x:.4f}", f"{y:.4f}", f"{z:.4f}", f"{r:.3f}", f"{p:.3f}", f"{yw:.3f}",
-            "/".join(f"{s_[k] * 1000:.1f}" for k in ("x_m", "y_m", "z_m")),
-            "/".join(f"{s_[k]:.3f}" for k in ("roll_deg", "pitch_deg", "yaw_deg")),
-        )
+    table = _pose_table(
+        f"T_body_sensor (body frame {result.body_frame})", result.sensors, rpy_std_decimals=3
+    )
     console.print(table)
     for name, g in ground.items():
         console.print(f"ground check {name}: normal {math.degrees(g.angle_rad):.3f} deg from body Z")
@@ -435,7 +409,6 @@ def _cmd_absolute(args, console) -> int:
 
 
 def _cmd_mocap(args, console) -> int:
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress
     from rich.table import Table
 
     from rigcal.io.results import result_to_json_text
@@ -443,10 +416,7 @@ def _cmd_mocap(args, console) -> int:
     from rigcal.mocap.pipeline import SUMMARY_COLUMNS, run_mocap, summary_rows, write_mocap_outputs
 
     config = load_mocap_config(args.config)
-    with Progress(
-        "[progress.description]{task.description}", BarColumn(), MofNCompleteColumn(),
-        console=console, transient=not console.is_terminal,
-    ) as bar:
+    with _progress_bar(console) as bar:
         task = bar.add_task("extracting", total=None)
         run = run_mocap(config, progress=lambda d, t: bar.update(task, completed=d, total=t))
     write_mocap_outputs(run, args.out, max_overlays=args.max_overlays)
@@ -555,12 +525,7 @@ def _cmd_demo(args, console) -> int:
     if args.detections_only:
         _print_demo(detections_demo(args.out, seed=args.seed, boards=args.boards or 29), console)
         return 0
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress
-
-    with Progress(
-        "[progress.description]{task.description}", BarColumn(), MofNCompleteColumn(),
-        console=console, transient=not console.is_terminal,
-    ) as bar:
+    with _progress_bar(console) as bar:
         tasks: dict[str, int] = {}
 
         def progress(stage: str, done: int, total: int) -> None:

@@ -74,3 +74,21 @@ def parse_calibration_transforms(text: str, source: str) -> CalibrationTransform
 def read_calibration_transforms(path: str | os.PathLike[str]) -> CalibrationTransforms:
     p = Path(path)
     return parse_calibration_transforms(read_text(p, "calibration file"), str(p))
+
+
+def read_initial_poses(path: str | os.PathLike[str]) -> dict[str, np.ndarray]:
+    """Initial guesses ``T_reference_sensor`` by sensor name from a rigcal ``calibration.yaml``
+    (every sensor, the reference included)."""
+    p = Path(path)
+    source = str(p)
+    data = load_yaml(read_text(p, "initial guesses"), source)
+    sensors = data.get("sensors") if isinstance(data, dict) else None
+    if not isinstance(sensors, dict):
+        raise InputError(f"{source}: expected a calibration.yaml with a 'sensors' mapping")
+    out = {}
+    for name, entry in sensors.items():
+        value = entry.get("T_reference_sensor") if isinstance(entry, dict) else None
+        if value is None:
+            raise InputError(f"{source}: sensors.{name}.T_reference_sensor must be a 4x4 matrix")
+        out[str(name)] = np.array(_matrix(value, f"{source}: sensors.{name}.T_reference_sensor"))
+    return out

@@ -270,10 +270,12 @@ def calibrate(dataset: Dataset, options: CalibrationOptions = CalibrationOptions
             if options.cross_validation_folds
             else {}
         )
-    warnings = _warnings(work, mode, reference, fit, options)
+    covariances = {s.name: sol.pose_covariance(s.name) for s in dataset.sensors}
+    stds = {name: pose_std(fit.poses[name], cov) for name, cov in covariances.items()}
+    warnings = _warnings(work, mode, reference, fit, options, stds)
     sensors = {}
     for s in dataset.sensors:
-        cov = sol.pose_covariance(s.name)
+        cov = covariances[s.name]
         held = ()
         if s.name == reference:
             held = ("x", "y", "z", "roll", "pitch", "yaw")
@@ -285,7 +287,7 @@ def calibrate(dataset: Dataset, options: CalibrationOptions = CalibrationOptions
             frame_id=s.frame_id,
             T_reference_sensor=fit.poses[s.name].copy(),
             covariance=cov,
-            std=pose_std(fit.poses[s.name], cov),
+            std=stds[s.name],
             held=held,
         )
     return CalibrationResult(
@@ -310,7 +312,12 @@ def calibrate(dataset: Dataset, options: CalibrationOptions = CalibrationOptions
 
 
 def _warnings(
-    dataset: Dataset, mode: str, reference: str, fit: _Fit, options: CalibrationOptions
+    dataset: Dataset,
+    mode: str,
+    reference: str,
+    fit: _Fit,
+    options: CalibrationOptions,
+    stds: Mapping[str, Mapping[str, float]],
 ) -> list[str]:
     sol = fit.solution
     out: list[str] = []
@@ -324,8 +331,7 @@ def _warnings(
     for s in dataset.sensors:
         if s.name == reference:
             continue
-        std = pose_std(fit.poses[s.name], sol.pose_covariance(s.name))
-        weak = weak_directions(std)
+        weak = weak_directions(stds[s.name])
         if s.kind == SensorKind.RADAR and not options.hold_radar_plane:
             weak_plane = [w for w in weak if w.split(" ")[0] in ("z", "roll", "pitch")]
             if weak_plane:

@@ -23,7 +23,8 @@ from rigcal.io.vicon_json import (
     write_vicon_target,
 )
 from rigcal.targets.definition import TargetKind
-from rigcal.targets.templates import cylinder_target, diamond_target, surface_distance_m
+from rigcal.targets.surface import surface_distance_m
+from rigcal.targets.templates import cylinder_target, diamond_target
 
 DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "vicon_sim"
 

@@ -7,10 +7,12 @@ import pytest
 
 from rigcal.dataset import SensorKind
 from rigcal.errors import ConfigError, InputError
-from rigcal.geometry.se3 import from_rt, invert, se3_exp
+from rigcal.geometry.se3 import from_rt, invert, se3_exp, transform_points
 from rigcal.geometry.so3 import matrix_from_rpy, so3_log
 from rigcal.problem.mocap import MocapOptions, MocapSensor, TargetObservation, calibrate_mocap
 from rigcal.sensors.camera.radtan import RadtanCamera
+from rigcal.targets.surface import TargetSurface
+from rigcal.targets.templates import cylinder_target
 
 R_OPT = np.array([[0, 0, 1], [-1, 0, 0], [0, -1, 0]], float)  # columns: optical x, y, z in a body x-fwd frame
 
@@ -106,6 +108,11 @@ def _errors(result):
     return out
 
 
+def _errors_of(result, name):
+    T, E = TRUTH[name], result.sensors[name].T_reference_sensor
+    return np.linalg.norm(E[:3, 3] - T[:3, 3]), np.degrees(np.linalg.norm(so3_log(T[:3, :3].T @ E[:3, :3])))
+
+
 def test_non_overlapping_rig_with_diamond_targets_noise_free():
     rng = np.random.default_rng(0)
     obs = _observations(rng, 5, noise_px=0.0, noise_m=0.0)
@@ -135,6 +142,62 @@ def test_cylinder_targets_need_correspondence_iterations_and_converge():
     t, a = _errors(r)["lidar1"]
     assert r.noise_iterations > 1  # correspondences were re-estimated
     assert t < 0.01 and a < 0.2, (t, a)
+
+
+def _near_half_cylinder_observations(rng, n_obs, noise_m=0.0):
+    """Lidar1 sees only the half of a cylinder (rigcal.targets, top at z = 0) that faces it."""
+    target = cylinder_target(0.1, 0.8)
+    T_R_S = TRUTH["lidar1"]
+    obs = []
+    for k in range(n_obs):
+        d = rng.uniform(2.0, 4.0)
+        centre = T_R_S[:3, 3] + d * T_R_S[:3, 0] + rng.uniform(-0.5, 0.5, 3) * [1, 1, 0.4]
+        R = matrix_from_rpy(np.radians(rng.uniform([-30, -30, -180], [30, 30, 180])))
+        T_R_T = from_rt(R, centre - R @ [0.0, 0.0, -0.4])
+        T_T_S = invert(T_R_T) @ T_R_S
+        a = rng.uniform(0, 2 * np.pi, 4000)
+        p = np.column_stack([0.1 * np.cos(a), 0.1 * np.sin(a), rng.uniform(-0.8, 0.0, 4000)])
+        facing = np.einsum("ni,ni->n", np.column_stack([np.cos(a), np.sin(a), 0 * a]), T_T_S[:3, 3] - p) > 0
+        P = transform_points(invert(T_T_S), p[facing][:200])
+        obs.append(TargetObservation("lidar1", "cylinder", int(k * 1e8), T_R_T, P + rng.normal(0, noise_m, P.shape)
+                                     if noise_m else P))
+    return target, obs
+
+
+def test_surface_correspondences_remove_the_centroid_bias_of_a_half_seen_cylinder():
+    rng = np.random.default_rng(7)
+    target, obs = _near_half_cylinder_observations(rng, 15)
+    sensor = [MocapSensor("lidar1", SensorKind.LIDAR, sigma=0.002)]
+    start = {"lidar1": _perturbed(rng)["lidar1"]}
+    surfaces = {"cylinder": TargetSurface.of(target)}
+    exact = calibrate_mocap(sensor, obs, start, surfaces)
+    t, a = _errors_of(exact, "lidar1")
+    assert t < 1e-5 and a < 1e-4, (t, a)
+    assert exact.rmse_m["robot-lidar1"] < 1e-6
+    paper = calibrate_mocap(sensor, obs, start, surfaces, MocapOptions(correspondences="centroid"))
+    t_paper, _ = _errors_of(paper, "lidar1")
+    assert t_paper > 0.005  # the scan's centroid is not the template's: centimetre-level bias
+    # a template cloud instead of the analytic surface: local planes, sub-millimetre
+    cloud = calibrate_mocap(sensor, obs, start, {"cylinder": target.template})
+    t_cloud, a_cloud = _errors_of(cloud, "lidar1")
+    assert t_cloud < 2e-4 and a_cloud < 0.005, (t_cloud, a_cloud)
+
+
+def test_surface_correspondences_with_range_noise_stay_within_the_reported_uncertainty():
+    rng = np.random.default_rng(8)
+    target, obs = _near_half_cylinder_observations(rng, 30, noise_m=0.005)
+    sensor = [MocapSensor("lidar1", SensorKind.LIDAR, sigma=0.005)]
+    r = calibrate_mocap(sensor, obs, {"lidar1": _perturbed(rng)["lidar1"]}, {"cylinder": TargetSurface.of(target)})
+    t, a = _errors_of(r, "lidar1")
+    s = r.sensors["lidar1"].std
+    assert t < 4 * np.linalg.norm([s["x_m"], s["y_m"], s["z_m"]]) + 1e-4, (t, s)
+    assert t < 0.003 and a < 0.1, (t, a)
+    assert r.rmse_m["robot-lidar1"] == pytest.approx(0.005, rel=0.15)  # the point-to-surface distance
+
+
+def test_correspondence_scheme_is_checked():
+    with pytest.raises(ConfigError, match="correspondences must be one of"):
+        MocapOptions(correspondences="magic")
 
 
 def test_bad_input_is_refused():

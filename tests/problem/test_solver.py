@@ -16,6 +16,7 @@ from rigcal.problem.pairs import pair_data
 from rigcal.problem.residuals import (
     MODEL_POINT,
     MODEL_RADAR2D,
+    MODEL_SURFACE,
     elevation_limit_residuals,
     observation_residuals,
 )
@@ -150,6 +151,13 @@ def _function(kind: str, rng: np.random.Generator, n: int):
         max_el = np.full(n, 0.1)
         sigma = 0.01
         return lambda TA, TB, P: elevation_limit_residuals(TA, TB, P, max_el, sigma)
+    if kind == "surface":
+        normals = rng.normal(size=(n, 3))
+        normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+        measured = rng.normal(0.0, 3.0, (n, 3))
+        sigma = rng.uniform(0.01, 0.2, (n, 1))
+        return lambda TA, TB, P: observation_residuals(TA, TB, P, measured, sigma, MODEL_SURFACE,
+                                                       normals_A=normals)
     model = MODEL_POINT if kind == "point3d" else MODEL_RADAR2D
     d = 3 if kind == "point3d" else 2
     measured = rng.normal(0.0, 3.0, (n, d))
@@ -159,7 +167,7 @@ def _function(kind: str, rng: np.random.Generator, n: int):
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
 @pytest.mark.parametrize("block", ["A", "B"])
-@pytest.mark.parametrize("kind", ["point3d", "radar2d", "elevation"])
+@pytest.mark.parametrize("kind", ["point3d", "radar2d", "elevation", "surface"])
 def test_jacobian_matches_central_differences_of_right_perturbation(kind, block, seed):
     """Contract: J[i, :, j] = d r_i / d xi_j with T <- T @ se3_exp(xi), xi = (omega, v)."""
     n = 12

@@ -30,7 +30,8 @@ from rigcal.sim.mocap import (
     target_centre,
 )
 from rigcal.sim.raw.lidar import vlp16
-from rigcal.targets.templates import circle_board_target, surface_distance_m
+from rigcal.targets.surface import surface_distance_m
+from rigcal.targets.templates import circle_board_target
 
 DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "vicon_sim"
 

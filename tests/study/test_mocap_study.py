@@ -15,12 +15,10 @@ from rigcal.geometry.so3 import rpy_from_matrix
 from rigcal.sim.mocap import paper_rig, paper_targets, simulate_mocap
 from rigcal.study import PAPER_TABLES, StudyTable, run_mocap_study
 from rigcal.study.mocap_study import (
-    closest_surface_points,
     extract_observation,
     main,
     perturb_calibration,
 )
-from rigcal.targets.templates import surface_distance_m
 
 
 def _row(table: StudyTable, n: int):
@@ -43,7 +41,7 @@ def test_lidar_with_the_diamond_points_recovers_the_calibration_from_five_measur
     # noise-free lidar and MCS: every scan point is exactly on the plate, so matching every
     # point to the plate's surface recovers the extrinsic (paper, Table I: 0.3 mm, 0.004 deg)
     t = run_mocap_study("diamond", "lidar", measurements=(5,), trials=2, seed=2,
-                        lidar_measurement="points", correspondences="nearest")
+                        lidar_measurement="points", correspondences="surface")
     for r in t.results:
         assert r.ok and r.translation_error_mm <= 0.3 and r.rotation_error_deg <= 0.004, t.format()
 
@@ -54,7 +52,7 @@ def test_lidar_with_the_diamond_corners_is_limited_by_the_icp_corners():
     # edges; rigcal's ICP places the corners unbiased but with ~2-3 mm scatter, so the result
     # stays at millimetres (30-trial study: ~1 mm / 0.03 deg with 30, ~3 mm / 0.07 deg with
     # 5) instead of the paper's 0.1-0.3 mm.
-    t = run_mocap_study("diamond", "lidar", measurements=(5, 30), trials=2, seed=3)
+    t = run_mocap_study("diamond", "lidar", measurements=(5, 30), trials=2, seed=3, lidar_measurement="keypoints")
     r5, r30 = _row(t, 5), _row(t, 30)
     assert r5.translation_mm.mean < 8.0 and r5.rotation_deg.mean < 0.2, t.format()
     assert r30.translation_mm.mean < 3.0 and r30.rotation_deg.mean < 0.07, t.format()
@@ -67,7 +65,7 @@ def test_lidar_with_the_diamond_corners_is_limited_by_the_icp_corners():
 def test_cylinder_converges_with_15_to_30_measurements():
     # paper, Table II: 4.6 mm / 0.047 deg with 30, 7.4 mm / 0.1 deg with 15, 88 mm with 5
     t = run_mocap_study("cylinder", "lidar", measurements=(15, 30), trials=1, seed=4,
-                        correspondences="nearest")
+                        correspondences="surface")
     for n in (15, 30):
         r = _row(t, n)
         assert r.translation_mm.mean <= 4.6 and r.rotation_deg.mean <= 0.047, t.format()
@@ -78,7 +76,7 @@ def test_cylinder_with_the_papers_centroid_aligned_matching_stays_biased():
     # a VLP-16 sees only the near half of a 56 mm cylinder, whose centroid is not the
     # template's, so the translation keeps a centimetre-level bias (30-trial study: ~37 mm
     # with 30) while the rotation improves from ~5 deg to a few tenths.
-    t = run_mocap_study("cylinder", "lidar", measurements=(30,), trials=1, seed=4)
+    t = run_mocap_study("cylinder", "lidar", measurements=(30,), trials=1, seed=4, correspondences="centroid")
     r = t.results[0]
     assert r.ok and r.rotation_error_deg < 0.2 * r.initial_rotation_error_deg
     assert 5.0 < r.translation_error_mm < 80.0
@@ -87,7 +85,7 @@ def test_cylinder_with_the_papers_centroid_aligned_matching_stays_biased():
 
 def test_mcs_noise_costs_accuracy_but_not_convergence():
     t = run_mocap_study("diamond", "lidar", measurements=(15,), trials=1, seed=5, mcs_noise_m=0.00015,
-                        lidar_measurement="points", correspondences="nearest")
+                        lidar_measurement="points", correspondences="surface")
     r = _row(t, 15)
     assert 0.001 < r.translation_mm.mean < 3.0 and r.rotation_deg.mean < 0.1, t.format()
     assert "MCS noise 0.15 mm" in t.format()
@@ -140,7 +138,7 @@ def test_bad_study_requests_are_refused():
         run_mocap_study(measurements=(0, 5))
     with pytest.raises(InputError, match="mcs_noise_m must be >= 0"):
         run_mocap_study(mcs_noise_m=-1.0)
-    with pytest.raises(InputError, match="correspondences must be 'paper' or 'nearest'"):
+    with pytest.raises(InputError, match="correspondences must be one of"):
         run_mocap_study(correspondences="magic")
     with pytest.raises(InputError, match="lidar_measurement must be"):
         run_mocap_study(lidar_measurement="edges")
@@ -169,16 +167,6 @@ def test_initial_calibration_is_perturbed_uniformly_within_3cm_and_5deg():
     assert np.abs(dt).max() <= 0.03 and np.abs(dt).max() > 0.028
     assert np.abs(drpy).max() <= 5.0 + 1e-9 and np.abs(drpy).max() > 4.8
     assert np.std(dt) == pytest.approx(0.03 / math.sqrt(3), rel=0.1)
-
-
-@pytest.mark.parametrize("which", ["diamond", "cylinder"])
-def test_closest_surface_points_are_on_the_surface_and_closest(which):
-    target = getattr(paper_targets(), which)
-    rng = np.random.default_rng(1)
-    p = rng.uniform(-0.6, 0.6, (500, 3)) + [0.1, 0.1, -0.2]
-    q = closest_surface_points(target, p)
-    assert surface_distance_m(target, q).max() < 1e-12
-    np.testing.assert_allclose(np.linalg.norm(p - q, axis=1), surface_distance_m(target, p), atol=1e-12)
 
 
 def test_extraction_of_a_capture_without_data_is_an_explicit_failure():

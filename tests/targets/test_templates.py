@@ -21,8 +21,8 @@ from rigcal.targets.templates import (
     cylinder_target,
     diamond_corners,
     diamond_target,
-    surface_distance_m,
 )
+from rigcal.targets.surface import surface_distance_m
 
 FACTORIES = {
     "diamond_sim": (lambda: diamond_target(), 0.005),

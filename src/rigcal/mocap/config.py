@@ -476,10 +476,11 @@ def _options(raw: Any, source: str) -> MocapOptions:
     for key, value in raw.items():
         w = f"{where}.{key}"
         default = getattr(defaults, key)
-        if key == "loss":
+        if key in ("loss", "correspondences"):
+            from rigcal.problem.mocap import CORRESPONDENCES
             from rigcal.problem.solver import LOSSES
 
-            allowed = tuple(LOSSES)
+            allowed = tuple(LOSSES) if key == "loss" else CORRESPONDENCES
             if value not in allowed:
                 raise InputError(f"{w}: expected one of {', '.join(allowed)}, got {value!r}")
             kw[key] = value

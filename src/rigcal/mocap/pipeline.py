@@ -24,8 +24,8 @@ Charron et al., section III, end to end:
 3. :func:`~rigcal.problem.mocap.calibrate_mocap` from the initial extrinsics;
 4. per kept measurement, the residual under the initial and the final calibration: the RMS
    distance [m] (lidar) or reprojection error [px] (camera) between the measured keypoints and
-   their target keypoints placed by the MCS; without correspondences, the distance to the
-   nearest template point (3D, or projected into the image).
+   their target keypoints placed by the MCS; without correspondences, a lidar point's distance
+   to the target's surface and a pixel's to the nearest projected template point.
 
 A sensor without any kept measurement, or a target no sensor measured, is an InputError that
 lists the rejection reasons. :func:`write_mocap_outputs` writes the result files
@@ -59,6 +59,7 @@ from rigcal.mocap.config import MocapConfig, PoseSourceSpec, SensorSpec, TargetS
 from rigcal.mocap.extrinsics import Extrinsics
 from rigcal.mocap.streams import PoseStream, interpolate
 from rigcal.problem.mocap import MocapSensor, TargetObservation, calibrate_mocap
+from rigcal.targets.surface import TargetSurface
 from rigcal.problem.result import CalibrationResult
 from rigcal.report.overlay import OverlayInput
 from rigcal.targets.definition import Target
@@ -397,9 +398,10 @@ def _process(frame: Any, sensor: SensorSpec, tspec: TargetSpec, ctx: _Context):
 
 
 def observation_residual(obs: TargetObservation, sensor: SensorSpec, target: Target,
-                         T_robot_sensor: np.ndarray) -> float:
+                         T_robot_sensor: np.ndarray, surface: TargetSurface | None = None) -> float:
     """RMS residual of one observation under ``T_robot_sensor``: [m] for a lidar, [px] for a
-    camera (see the module docstring; nearest template point without correspondences)."""
+    camera (see the module docstring; without correspondences: a lidar point's distance to
+    the target's surface, a pixel's to the nearest projected template point)."""
     from scipy.spatial import cKDTree
 
     T_st = invert(np.asarray(T_robot_sensor, dtype=float)) @ obs.T_robot_target
@@ -419,7 +421,8 @@ def observation_residual(obs: TargetObservation, sensor: SensorSpec, target: Tar
     elif obs.keypoints_target is not None:
         e = np.linalg.norm(obs.measured - X, axis=1)
     else:
-        e, _ = cKDTree(X).query(obs.measured)
+        surface = surface if surface is not None else TargetSurface.of(target)
+        e = surface.distance(transform_points(invert(T_st), obs.measured))
     return float(np.sqrt(np.mean(np.square(e))))
 
 
@@ -536,7 +539,7 @@ def run_mocap(config: MocapConfig, progress: Callable[[int, int], None] | None =
         MocapSensor(s.name, s.kind, camera=s.camera, sigma=s.sigma, frame_id=s.frame_id)
         for s in config.sensors
     ]
-    templates = {n: t.target.template for n, t in config.targets.items()}
+    templates = {n: TargetSurface.of(t.target) for n, t in config.targets.items()}
     result = calibrate_mocap(mocap_sensors, observations, initial, templates, config.options)
     final = {n: e.T_reference_sensor for n, e in result.sensors.items()}
 
@@ -547,8 +550,8 @@ def run_mocap(config: MocapConfig, progress: Callable[[int, int], None] | None =
             obs = next(it)
             s, tgt = sensors[d.sensor], config.targets[d.target].target
             d = replace(d,
-                        residual_initial=observation_residual(obs, s, tgt, initial[d.sensor]),
-                        residual_final=observation_residual(obs, s, tgt, final[d.sensor]))
+                        residual_initial=observation_residual(obs, s, tgt, initial[d.sensor], templates[d.target]),
+                        residual_final=observation_residual(obs, s, tgt, final[d.sensor], templates[d.target]))
         filled.append(d)
     return MocapRun(
         config=config,

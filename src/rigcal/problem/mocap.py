@@ -9,10 +9,18 @@ two sensors see the same target:
 * camera (eq. 3): ``e = rho - pi(T_R_C^-1 T_R_T P_T)`` for measured pixels ``rho``.
 
 Each observation is a pose block ``T_R_T`` held at its MCS value; sensors are free. Targets
-without distinct keypoints (a cylinder) give measured points with unknown correspondences: they
-are matched to the target's template points by nearest neighbours after aligning centroids
-(under the current calibration), the problem is solved, and correspondences are re-estimated
-until the calibration stops changing (paper III-D).
+without distinct keypoints (a cylinder, or every lidar point on a plate) give measured points
+with unknown correspondences: they are matched to the target's template points by nearest
+neighbours after aligning centroids (under the current calibration), the problem is solved, and
+correspondences are re-estimated until the calibration stops changing (paper III-D).
+
+Centroid alignment is robust far from the truth but biased near it whenever the sensor sees
+only part of the target (a lidar sees the near half of a cylinder: the centroids differ by
+centimetres). With ``correspondences="surface"`` (the default) the paper's matching only gets
+the calibration close; then every lidar point is tied to the closest point of the target's
+surface (:class:`rigcal.targets.surface.TargetSurface`, analytic for the diamond, cylinder and
+circle board) by a point-to-plane residual, re-linearised until the calibration stops changing.
+On exact data this recovers the calibration exactly; cameras keep the paper's matching.
 
 With ``target_pose_sigma`` set, target poses are estimated too under a prior from the MCS
 (small per-target corrections); sensors that see the same target at the same time then share
@@ -23,7 +31,7 @@ its pose - the direct sensor-to-sensor coupling of overlapping views. Circle-boa
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -34,10 +42,11 @@ from rigcal.dataset import SensorKind
 from rigcal.errors import ConfigError, ConvergenceError, InputError
 from rigcal.geometry.se3 import invert
 from rigcal.geometry.so3 import so3_log
-from rigcal.problem.residuals import MODEL_CAMERA, MODEL_POINT
+from rigcal.problem.residuals import MODEL_CAMERA, MODEL_POINT, MODEL_SURFACE
 from rigcal.problem.result import CalibrationResult, SensorEstimate
 from rigcal.problem.solver import Observations, PoseBlock, PosePriors, Problem, solve
 from rigcal.problem.uncertainty import pose_std
+from rigcal.targets.surface import TargetSurface
 
 ROBOT = "robot"
 
@@ -107,10 +116,21 @@ class TargetObservation:
         object.__setattr__(self, "measured", m)
 
 
+#: correspondence schemes for measurements without keypoints (see the module docstring)
+CORRESPONDENCES = ("surface", "centroid")
+
+
 @dataclass(frozen=True)
 class MocapOptions:
     loss: str = "huber"
     loss_scale: float = 3.0  # in units of sigma
+    #: "centroid": the paper's centroid-aligned nearest template points throughout;
+    #: "surface": then lidar points to the closest surface point (point-to-plane)
+    correspondences: str = "surface"
+    #: the centroid phase hands over to the surface phase once the calibration changes less
+    #: than these per iteration
+    handover_translation_m: float = 1e-4
+    handover_rotation_rad: float = 1e-4
     max_correspondence_iterations: int = 30
     translation_tolerance_m: float = 1e-6
     rotation_tolerance_rad: float = 1e-7
@@ -124,6 +144,13 @@ class MocapOptions:
     sync_tolerance_ns: int = 5_000_000
     #: circle-board detections' noise [m] when board placements join the problem
     board_sigma_m: float = 0.01
+
+    def __post_init__(self) -> None:
+        if self.correspondences not in CORRESPONDENCES:
+            raise ConfigError(f"mocap options: correspondences must be one of {CORRESPONDENCES}, "
+                              f"got {self.correspondences!r}")
+        if not int(self.max_correspondence_iterations) >= 1:
+            raise ConfigError("mocap options: max_correspondence_iterations must be >= 1")
 
 
 def _check(sensors: Sequence[MocapSensor], observations: Sequence[TargetObservation], initial, templates):
@@ -177,6 +204,19 @@ def _correspond(obs: TargetObservation, sensor: MocapSensor, T_R_S: np.ndarray, 
     return template[idx[j]][keep], keep
 
 
+def _closest_on_surface(obs: TargetObservation, sensor: MocapSensor, T_R_S: np.ndarray, T_R_T: np.ndarray,
+                        surface: TargetSurface, options: MocapOptions):
+    """Closest surface points and normals (target frame) of the measured lidar points placed by
+    the current calibration, and which measurements are kept."""
+    T_T_S = invert(T_R_T) @ T_R_S
+    y = obs.measured @ T_T_S[:3, :3].T + T_T_S[:3, 3]
+    q, n = surface.closest(y)
+    keep = np.ones(len(y), dtype=bool)
+    if options.max_correspondence_sigma > 0:
+        keep = np.linalg.norm(y - q, axis=1) <= options.max_correspondence_sigma * sensor.sigma
+    return q[keep], n[keep], keep
+
+
 def _target_blocks(observations, options) -> list[int]:
     """Index of the target pose block of every observation (shared when several sensors see one
     target at the same time and target poses are estimated)."""
@@ -194,10 +234,11 @@ def _target_blocks(observations, options) -> list[int]:
     return out
 
 
-def _build(sensors, observations, poses, templates, options, boards=None, block_poses=None):
+def _build(sensors, observations, poses, surfaces, options, boards=None, block_poses=None, phase="centroid"):
     blocks = [PoseBlock(s.name, poses[s.name]) for s in sensors]
-    per_sensor: dict[str, dict[str, list]] = {s.name: {"frame": [], "points": [], "measured": [], "board": []} for s in sensors}
     names = {s.name: s for s in sensors}
+    # (sensor, model) -> items of one residual batch
+    items: dict[tuple[str, str], dict[str, list]] = {}
     target_of = _target_blocks(observations, options)
     free = options.target_pose_sigma is not None
     made: dict[int, str] = {}
@@ -212,36 +253,47 @@ def _build(sensors, observations, poses, templates, options, boards=None, block_
             if free:
                 prior_blocks.append(block)
                 prior_T.append(o.T_robot_target)
+        sensor = names[o.sensor]
+        normals = None
+        model = MODEL_CAMERA if sensor.kind == SensorKind.CAMERA else MODEL_POINT
         if o.keypoints_target is not None:
             pts, meas = o.keypoints_target, o.measured
+        elif phase == "surface" and sensor.kind == SensorKind.LIDAR:
+            T_R_T = block_poses.get(block, o.T_robot_target) if block_poses else o.T_robot_target
+            pts, normals, keep = _closest_on_surface(o, sensor, poses[o.sensor], T_R_T, surfaces[o.target], options)
+            meas, model = o.measured[keep], MODEL_SURFACE
         else:
-            pts, keep = _correspond(o, names[o.sensor], poses[o.sensor], templates[o.target], options)
-            if pts is None or len(pts) == 0:
+            pts, keep = _correspond(o, sensor, poses[o.sensor], surfaces[o.target].template, options)
+            if pts is None:
                 continue
             meas = o.measured[keep]
-        d = per_sensor[o.sensor]
+        if len(pts) == 0:
+            continue
+        d = items.setdefault((o.sensor, model), {"frame": [], "points": [], "measured": [], "board": [], "normals": []})
         d["frame"] += [block] * len(pts)
         d["points"].append(pts)
         d["measured"].append(meas)
         d["board"].append(np.full(len(pts), i))
+        if normals is not None:
+            d["normals"].append(normals)
     batches = []
-    for s in sensors:
-        d = per_sensor[s.name]
-        if not d["frame"]:
-            continue
+    for (name, model), d in items.items():
+        s = names[name]
         meas = np.concatenate(d["measured"])
+        surface = model == MODEL_SURFACE
         batches.append(
             Observations(
-                label=f"{ROBOT}-{s.name}",
-                sensor=s.name,
-                model=MODEL_CAMERA if s.kind == SensorKind.CAMERA else MODEL_POINT,
+                label=f"{ROBOT}-{name}" + (":surface" if surface else ""),
+                sensor=name,
+                model=model,
                 frame=tuple(d["frame"]),
-                observer=(s.name,) * len(d["frame"]),
+                observer=(name,) * len(d["frame"]),
                 points=np.concatenate(d["points"]),
                 measured=meas,
-                sigma=np.full(meas.shape, s.sigma),
+                sigma=np.full((len(meas), 1 if surface else meas.shape[1]), s.sigma),
                 board=np.concatenate(d["board"]),
                 camera=s.camera,
+                normals=np.concatenate(d["normals"]) if surface else None,
             )
         )
     limits = []
@@ -268,32 +320,42 @@ def calibrate_mocap(
     sensors: Sequence[MocapSensor],
     observations: Sequence[TargetObservation],
     initial: Mapping[str, np.ndarray],
-    templates: Mapping[str, np.ndarray] | None = None,
+    templates: Mapping[str, np.ndarray | TargetSurface] | None = None,
     options: MocapOptions = MocapOptions(),
     boards=None,
 ) -> CalibrationResult:
     """``T_robot_sensor`` for every sensor from MCS-tracked target observations.
 
     ``initial``: ``T_robot_sensor`` guesses (e.g. CAD or TF). ``templates``: target name ->
-    (K, 3) template points in the target frame, for observations without correspondences.
+    its :class:`~rigcal.targets.surface.TargetSurface` (``TargetSurface.of(target)``: analytic
+    when it can be) or (K, 3) template points in the target frame, for observations without
+    correspondences. ``options.correspondences`` chooses how those are matched.
     ``boards``: an optional :class:`rigcal.dataset.Dataset` of circle-board placements seen by
     these sensors (same names): their pairwise terms join the problem (Domhof et al.).
     Raises ConvergenceError when the correspondence iterations do not settle.
     """
-    templates = {k: np.asarray(v, dtype=float) for k, v in (templates or {}).items()}
-    _check(sensors, observations, initial, templates)
+    surfaces = {k: v if isinstance(v, TargetSurface) else TargetSurface.of_template(v, k)
+                for k, v in (templates or {}).items()}
+    _check(sensors, observations, initial, surfaces)
     if boards is not None:
         unknown = [n for n in boards.names if n not in {s.name for s in sensors}]
         if unknown:
             raise InputError(f"board dataset sensors {unknown} are not among the mocap sensors")
     t0 = time.perf_counter()
     poses = {s.name: np.asarray(initial[s.name], dtype=float) for s in sensors}
+    kinds = {s.name: s.kind for s in sensors}
     needs_iterations = any(o.keypoints_target is None for o in observations)
+    # the surface phase applies to lidar measurements without keypoints
+    handover = options.correspondences == "surface" and any(
+        o.keypoints_target is None and kinds[o.sensor] == SensorKind.LIDAR for o in observations)
+    phase, phase_it, it = "centroid", 0, 0
     sol = None
     with threadpool_limits(limits=1):
         block_poses: dict[str, np.ndarray] = {}
-        for it in range(1, options.max_correspondence_iterations + 1):
-            prob = _build(sensors, observations, poses, templates, options, boards, block_poses)
+        while True:
+            it += 1
+            phase_it += 1
+            prob = _build(sensors, observations, poses, surfaces, options, boards, block_poses, phase)
             sol = solve(prob, loss=options.loss, loss_scale=options.loss_scale)
             block_poses = {k: v for k, v in sol.poses.items() if k.startswith("target:")}
             if not sol.converged:
@@ -303,26 +365,34 @@ def calibrate_mocap(
                 float(np.linalg.norm(so3_log(poses[s.name][:3, :3].T @ sol.poses[s.name][:3, :3]))) for s in sensors
             )
             poses = {s.name: sol.poses[s.name] for s in sensors}
-            if not needs_iterations or (
-                change_t <= options.translation_tolerance_m and change_r <= options.rotation_tolerance_rad
-            ):
+            if not needs_iterations:
                 break
-        else:
-            raise ConvergenceError(
-                f"mocap calibration: correspondences still changing after "
-                f"{options.max_correspondence_iterations} iterations"
-            )
+            if handover and phase == "centroid":
+                # the paper's matching only has to get close: its fixed point is biased anyway
+                settled = change_t <= options.handover_translation_m and change_r <= options.handover_rotation_rad
+                if settled or phase_it >= options.max_correspondence_iterations:
+                    phase, phase_it = "surface", 0
+                continue
+            if change_t <= options.translation_tolerance_m and change_r <= options.rotation_tolerance_rad:
+                break
+            if phase_it >= options.max_correspondence_iterations:
+                raise ConvergenceError(
+                    f"mocap calibration: {phase} correspondences still changing after "
+                    f"{options.max_correspondence_iterations} iterations"
+                )
     assert sol is not None
     estimates, rmse, reproj = {}, {}, {}
-    by_sensor = {b.sensor: (b, r) for b, r in zip(prob.observations, sol.residuals) if b.label.startswith(ROBOT)}
+    errors: dict[str, list[np.ndarray]] = {s.name: [] for s in sensors}
+    for b, r in zip(prob.observations, sol.residuals):
+        if b.label.startswith(ROBOT):
+            errors[b.sensor].append(np.linalg.norm(r * b.sigma, axis=1))
     for s in sensors:
         cov = sol.pose_covariance(s.name)
         estimates[s.name] = SensorEstimate(
             name=s.name, kind=s.kind, frame_id=s.frame_id, T_reference_sensor=poses[s.name].copy(),
             covariance=cov, std=pose_std(poses[s.name], cov),
         )
-        b, r = by_sensor[s.name]
-        e = np.linalg.norm(r * b.sigma, axis=1)
+        e = np.concatenate(errors[s.name]) if errors[s.name] else np.full(1, np.nan)
         value = float(np.sqrt(np.mean(e**2)))
         (reproj if s.kind == SensorKind.CAMERA else rmse)[f"{ROBOT}-{s.name}"] = value
     return CalibrationResult(

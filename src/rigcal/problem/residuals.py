@@ -8,7 +8,16 @@ Every residual here has the same shape: a point ``p`` fixed in frame A is seen b
 ``h`` is the identity for 3D sensors (lidar, stereo camera, 3D radar), the 2D radar
 projection (range, azimuth; elevation dropped - paper eq. 3) for 2D radars, and a camera
 model's projection to pixels for cameras (points outside the model's domain, e.g. behind the
-camera, give a zero residual and no gradient). Poses are
+camera, give a zero residual and no gradient).
+
+The surface model turns this around for a point ``z`` measured by B on a known surface of A
+(a lidar point on a target plate): with ``p`` the surface point it corresponds to and ``n``
+the surface normal there, both in A,
+
+    y = T_W_A^-1 @ T_W_B @ z          (the measured point in A's frame)
+    r = n . (y - p) / sigma           (signed point-to-plane distance, one row per point)
+
+Poses are
 perturbed on the right, ``T <- T @ exp(xi)`` with ``xi = (omega, v)``, so Jacobians are
 with respect to (omega, v) expressed in each pose's own frame.
 
@@ -26,6 +35,11 @@ from rigcal.sensors.radar import elevation, elevation_jacobian, project_2d, proj
 MODEL_POINT = "point3d"
 MODEL_RADAR2D = "radar2d"
 MODEL_CAMERA = "camera"  # pixels through a rigcal.sensors.camera model (paper 001, eq. 3)
+MODEL_SURFACE = "surface"  # a measured 3D point's distance to a surface of frame A (point-to-plane)
+
+#: rows of ``measured`` per item and rows of the residual per item, by model
+MEASURED_DIM = {MODEL_POINT: 3, MODEL_RADAR2D: 2, MODEL_CAMERA: 2, MODEL_SURFACE: 3}
+RESIDUAL_DIM = {MODEL_POINT: 3, MODEL_RADAR2D: 2, MODEL_CAMERA: 2, MODEL_SURFACE: 1}
 
 
 def point_in_observer(
@@ -58,8 +72,14 @@ def observation_residuals(
     sigma: np.ndarray,
     model: str,
     camera=None,
+    normals_A: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Whitened residuals (n, d) and Jacobians (n, d, 6) for frame A and observer B."""
+    """Whitened residuals (n, d) and Jacobians (n, d, 6) for frame A and observer B.
+
+    ``model`` MODEL_SURFACE needs ``normals_A`` (n, 3) unit normals at ``points_A``; its
+    ``measured`` are points in B and ``sigma`` is (n, 1)."""
+    if model == MODEL_SURFACE:
+        return _surface_residuals(T_W_A, T_W_B, points_A, normals_A, measured, sigma)
     x, JA, JB = point_in_observer(T_W_A, T_W_B, points_A)
     if model == MODEL_POINT:
         h, H = x, None
@@ -80,6 +100,18 @@ def observation_residuals(
         JB = H @ JB
     JA = JA * inv_sigma[..., None]
     JB = JB * inv_sigma[..., None]
+    return r, JA, JB
+
+
+def _surface_residuals(T_W_A, T_W_B, points_A, normals_A, measured_B, sigma):
+    if normals_A is None:
+        raise ValueError("surface residuals need the surface normals at the points")
+    # the measured point seen from A: the roles of point_in_observer swap
+    y, JB, JA = point_in_observer(T_W_B, T_W_A, measured_B)
+    inv_sigma = 1.0 / sigma  # (n, 1)
+    r = np.einsum("ni,ni->n", normals_A, y - points_A)[:, None] * inv_sigma
+    JA = np.einsum("ni,nij->nj", normals_A, JA)[:, None, :] * inv_sigma[..., None]
+    JB = np.einsum("ni,nij->nj", normals_A, JB)[:, None, :] * inv_sigma[..., None]
     return r, JA, JB
 
 

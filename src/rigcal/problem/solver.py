@@ -23,9 +23,10 @@ import scipy.sparse.linalg
 from rigcal.errors import ConfigError
 from rigcal.geometry.se3 import se3_exp, se3_log
 from rigcal.problem.residuals import (
+    MEASURED_DIM,
     MODEL_CAMERA,
-    MODEL_POINT,
-    MODEL_RADAR2D,
+    MODEL_SURFACE,
+    RESIDUAL_DIM,
     elevation_limit_residuals,
     observation_residuals,
 )
@@ -60,7 +61,10 @@ class Observations:
 
     Item i: point ``points[i]`` (3,) fixed in pose block ``frame[i]`` is measured by the sensor
     whose pose block is ``observer[i]`` as ``measured[i]`` (d,) with std ``sigma[i]`` (d,).
-    ``board[i]`` is the board placement the item belongs to; ``label`` names the batch
+    MODEL_SURFACE turns this around: ``measured[i]`` (3,) is a point measured by the observer
+    on the surface of frame ``frame[i]``, ``points[i]`` its closest surface point and
+    ``normals[i]`` (3,) the surface normal there (both in that frame); ``sigma[i]`` (1,) is the
+    std of the point-to-plane distance. ``board[i]`` is the board placement the item belongs to; ``label`` names the batch
     (a sensor pair such as ``"lidar1-camera1"`` or a sensor); ``sensor`` names the observer.
     """
 
@@ -74,20 +78,26 @@ class Observations:
     sigma: np.ndarray
     board: np.ndarray
     camera: object | None = None  # a rigcal.sensors.camera model, for MODEL_CAMERA
+    normals: np.ndarray | None = None  # (n, 3) unit surface normals, for MODEL_SURFACE
 
     def __post_init__(self) -> None:
-        if self.model not in (MODEL_POINT, MODEL_RADAR2D, MODEL_CAMERA):
+        if self.model not in MEASURED_DIM:
             raise ConfigError(f"unknown measurement model {self.model!r}")
         if self.model == MODEL_CAMERA and self.camera is None:
             raise ConfigError(f"observations '{self.label}': a camera model is needed for pixels")
+        if (self.model == MODEL_SURFACE) != (self.normals is not None):
+            raise ConfigError(f"observations '{self.label}': surface normals go with (and only with) "
+                              f"the {MODEL_SURFACE!r} model")
         n = len(self.frame)
-        d = 3 if self.model == MODEL_POINT else 2
-        for name, arr, shape in (
+        checks = [
             ("points", self.points, (n, 3)),
-            ("measured", self.measured, (n, d)),
-            ("sigma", self.sigma, (n, d)),
+            ("measured", self.measured, (n, MEASURED_DIM[self.model])),
+            ("sigma", self.sigma, (n, RESIDUAL_DIM[self.model])),
             ("board", self.board, (n,)),
-        ):
+        ]
+        if self.normals is not None:
+            checks.append(("normals", self.normals, (n, 3)))
+        for name, arr, shape in checks:
             a = np.array(arr, dtype=int if name == "board" else float)
             if a.shape != shape:
                 raise ConfigError(f"observations '{self.label}': {name} shape {a.shape} != {shape}")
@@ -102,10 +112,11 @@ class Observations:
 
     @property
     def dim(self) -> int:
-        return 3 if self.model == MODEL_POINT else 2
+        """Residual rows per item."""
+        return RESIDUAL_DIM[self.model]
 
     def with_sigma(self, sigma: np.ndarray) -> "Observations":
-        return replace(self, sigma=np.broadcast_to(sigma, self.measured.shape).copy())
+        return replace(self, sigma=np.broadcast_to(sigma, (self.size, self.dim)).copy())
 
 
 @dataclass(frozen=True, eq=False)  # holds arrays: compare by identity
@@ -334,7 +345,8 @@ def _evaluate(problem: Problem, layout: _Layout, T: np.ndarray, loss: str, c: fl
             raw.append(np.zeros((0, batch.dim)))
             continue
         r, JA, JB = observation_residuals(
-            T[ia], T[ib], batch.points, batch.measured, batch.sigma, batch.model, batch.camera
+            T[ia], T[ib], batch.points, batch.measured, batch.sigma, batch.model, batch.camera,
+            batch.normals,
         )
         raw.append(r)
         s = np.sum(r * r, axis=1)

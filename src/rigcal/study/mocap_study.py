@@ -48,9 +48,9 @@ import numpy as np
 
 from rigcal.dataset import SensorKind
 from rigcal.errors import ConvergenceError, GeometryError, InputError, RigcalError
-from rigcal.geometry.se3 import from_rt, invert, se3_exp, transform_points
+from rigcal.geometry.se3 import from_rt, invert, transform_points
 from rigcal.geometry.so3 import matrix_from_rpy, so3_log
-from rigcal.problem.mocap import MocapOptions, MocapSensor, TargetObservation, calibrate_mocap
+from rigcal.problem.mocap import CORRESPONDENCES, MocapOptions, MocapSensor, TargetObservation, calibrate_mocap
 from rigcal.sim.mocap import (
     CAMERA,
     LIDAR,
@@ -62,9 +62,9 @@ from rigcal.sim.mocap import (
     paper_rig,
     paper_targets,
     simulate_mocap,
-    target_centre,
 )
 from rigcal.targets.definition import Target, TargetKind
+from rigcal.targets.surface import TargetSurface, surface_distance_m
 
 log = logging.getLogger(__name__)
 
@@ -418,7 +418,6 @@ def _residual(obs: Sequence[TargetObservation], kind: str, target: Target, T_est
         if obs[0].keypoints_target is not None:
             d = [np.linalg.norm(o.measured - transform_points(T_se @ o.T_robot_target, o.keypoints_target), axis=1) for o in obs]
         else:
-            from rigcal.targets.templates import surface_distance_m
 
             d = [surface_distance_m(target, transform_points(invert(T_se @ o.T_robot_target), o.measured)) for o in obs]
         e = np.concatenate(d)
@@ -439,82 +438,17 @@ def _sensor_sigma(kind: str, target: Target) -> float:
     return 0.1 if target.kind is TargetKind.CHECKERBOARD_DIAMOND else 0.7
 
 
-def closest_surface_points(target: Target, points_target: np.ndarray) -> np.ndarray:
-    """(N, 3) the point of ``target``'s surface closest to each of ``points_target`` (N, 3)
-    [m, target frame]: analytic for a cylinder (lateral surface or an end disc) and a diamond
-    plate, the nearest template point otherwise."""
-    p = np.asarray(points_target, dtype=float).reshape(-1, 3)
-    if target.kind is TargetKind.CYLINDER and {"radius_m", "height_m"} <= set(target.dims):
-        r, h = float(target.dims["radius_m"]), float(target.dims["height_m"])
-        rho = np.hypot(p[:, 0], p[:, 1])
-        unit = p[:, :2] / np.maximum(rho, 1e-12)[:, None]
-        side = np.column_stack([r * unit, np.clip(p[:, 2], -h, 0.0)])
-        disc_xy = p[:, :2] * np.minimum(1.0, r / np.maximum(rho, 1e-12))[:, None]
-        cands = [side] + [np.column_stack([disc_xy, np.full(len(p), zc)]) for zc in (0.0, -h)]
-        d = np.stack([np.linalg.norm(c - p, axis=1) for c in cands])
-        best = np.argmin(d, axis=0)
-        return np.choose(best[:, None], cands)
-    if target.kind is TargetKind.CHECKERBOARD_DIAMOND and {"side_m", "square_m", "rows", "cols"} <= set(target.dims):
-        c = target_centre(target)
-        half = float(target.dims["side_m"]) / 2
-        dx, dy = p[:, 0] - c[0], p[:, 1] - c[1]
-        # in the square's own axes (turned 45 degrees) the closest point is a clamp
-        u = np.clip((dx + dy) / math.sqrt(2), -half, half)
-        v = np.clip((dy - dx) / math.sqrt(2), -half, half)
-        return np.column_stack([c[0] + (u - v) / math.sqrt(2), c[1] + (u + v) / math.sqrt(2), np.zeros(len(p))])
-    from scipy.spatial import cKDTree
-
-    _, j = cKDTree(target.template).query(p)
-    return target.template[j]
-
-
-def refine_point_to_surface(obs: Sequence[TargetObservation], target: Target, T_robot_sensor: np.ndarray,
-                            sigma_m: float = 0.005, loss: str = "huber") -> np.ndarray:
-    """Refine a lidar's ``T_robot_sensor`` from measurements without correspondences by
-    minimising every measured point's distance to the closest point of the target's surface
-    (:func:`closest_surface_points`), the target placed by the MCS - a point-to-surface ICP over
-    all observations at once, with no centroid alignment. Least squares over the right
-    perturbation of ``T_robot_sensor`` (robust ``loss`` at 3 ``sigma_m``)."""
-    from scipy.optimize import least_squares
-
-    T0 = np.asarray(T_robot_sensor, dtype=float)
-    T_tr = [invert(o.T_robot_target) for o in obs]
-    pts = [o.measured for o in obs]
-
-    def residuals(xi: np.ndarray) -> np.ndarray:
-        T = T0 @ se3_exp(xi)
-        out = []
-        for A, p in zip(T_tr, pts):
-            q = transform_points(A @ T, p)
-            out.append((q - closest_surface_points(target, q)).ravel())
-        return np.concatenate(out) / sigma_m
-
-    sol = least_squares(residuals, np.zeros(6), method="trf", loss=loss, f_scale=3.0, x_scale=1.0,
-                        diff_step=1e-7, xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=200)
-    return T0 @ se3_exp(sol.x)
-
-
-def _calibrate(obs, kind, rig: MocapRig, target: Target, T_init, T_true, trial, n, options,
-               correspondences: str = "paper") -> TrialResult:
+def _calibrate(obs, kind, rig: MocapRig, target: Target, T_init, T_true, trial, n, options) -> TrialResult:
     name = rig.name_of(kind)
     sk = SensorKind.LIDAR if kind == LIDAR else SensorKind.CAMERA
     sensor = MocapSensor(name, sk, camera=rig.camera if kind == CAMERA else None, sigma=_sensor_sigma(kind, target))
-    templates = {} if obs[0].keypoints_target is not None else {target.name: target.template}
+    templates = {} if obs[0].keypoints_target is not None else {target.name: TargetSurface.of(target)}
     init_t = float(np.linalg.norm(T_init[:3, 3] - T_true[:3, 3]) * 1e3)
     init_r = math.degrees(_rotation_angle(T_true[:3, :3].T @ T_init[:3, :3]))
     t0 = time.perf_counter()
     try:
-        refine = correspondences == "nearest" and bool(templates) and kind == LIDAR
-        if refine:  # the refinement needs only a start: the paper's matching may stop early
-            options = dataclasses.replace(
-                options, max_correspondence_iterations=max(options.max_correspondence_iterations, 100),
-                translation_tolerance_m=max(options.translation_tolerance_m, 1e-4),
-                rotation_tolerance_rad=max(options.rotation_tolerance_rad, 1e-4),
-            )
         res = calibrate_mocap([sensor], obs, {name: T_init}, templates, options)
         T = res.sensors[name].T_reference_sensor
-        if refine:
-            T = refine_point_to_surface(obs, target, T, sensor.sigma)
     except (ConvergenceError, GeometryError) as exc:
         nan = math.nan
         return TrialResult(trial, n, nan, nan, nan, nan, nan, init_t, init_r, time.perf_counter() - t0, str(exc))
@@ -563,8 +497,8 @@ def run_mocap_study(
     targets: PaperTargets | None = None,
     placement: Placement = Placement(),
     options: MocapOptions = MocapOptions(),
-    correspondences: str = "paper",
-    lidar_measurement: str = "keypoints",
+    correspondences: str = "surface",
+    lidar_measurement: str = "points",
     lidar_range_sigma_m: float = 0.0,
     same_data: bool = False,
     max_captures_factor: float = 3.0,
@@ -577,11 +511,11 @@ def run_mocap_study(
     measurements of each trial); ``trials``: how many seeded trials; ``mcs_noise_m``: MCS
     position noise per axis (0 = exact poses, as the paper; 0.00015 = Vicon's 0.15 mm).
     ``targets``: the target definitions (default :func:`rigcal.sim.mocap.paper_targets`).
-    ``correspondences`` (targets without keypoints): ``"paper"`` - calibrate_mocap's
-    centroid-aligned nearest-neighbour matching (paper III-D); ``"nearest"`` - then refined by
-    matching every lidar point to the closest surface point under the current calibration
-    (:func:`closest_surface_points`), which removes the bias the centroid alignment leaves
-    when only part of the target is seen (the camera keeps ``"paper"``). ``same_data``: every
+    ``correspondences`` (measurements without keypoints, :class:`MocapOptions`): ``"centroid"``
+    - the paper's centroid-aligned nearest-neighbour matching (III-D) throughout;
+    ``"surface"`` - after it, every lidar point tied to the closest point of the target's
+    analytic surface (point-to-plane), which removes the bias the centroid alignment leaves
+    when only part of the target is seen (cameras keep the paper's matching). ``same_data``: every
     trial sees the same simulated captures and differs only in its initial calibration (what
     the paper's tiny standard deviations suggest it did); otherwise each trial draws new data.
     A trial that cannot gather ``max(measurements)`` measurements within
@@ -593,8 +527,9 @@ def run_mocap_study(
         raise InputError(f"study: lidar_measurement must be 'keypoints' or 'points', got {lidar_measurement!r}")
     if not (math.isfinite(lidar_range_sigma_m) and lidar_range_sigma_m >= 0):
         raise InputError(f"study: lidar_range_sigma_m must be >= 0, got {lidar_range_sigma_m!r}")
-    if correspondences not in ("paper", "nearest"):
-        raise InputError(f"study: correspondences must be 'paper' or 'nearest', got {correspondences!r}")
+    if correspondences not in CORRESPONDENCES:
+        raise InputError(f"study: correspondences must be one of {CORRESPONDENCES}, got {correspondences!r}")
+    options = dataclasses.replace(options, correspondences=correspondences)
     tg = targets or paper_targets()
     tdef = tg.diamond if target == "diamond" else tg.cylinder
     source = tg.diamond_source if target == "diamond" else tg.cylinder_source
@@ -643,8 +578,7 @@ def run_mocap_study(
                                            f"only {len(obs)} measurements from {index} captures"))
                 continue
             t0 = time.perf_counter()
-            results.append(_calibrate(obs[:n], sensor, rig, tdef, T_init, T_true, trial, n, options,
-                                      correspondences))
+            results.append(_calibrate(obs[:n], sensor, rig, tdef, T_init, T_true, trial, n, options))
             t_cal += time.perf_counter() - t0
         log.debug("mocap study trial %d: %d measurements from %d captures", trial, len(obs), index)
         if progress is not None:
@@ -683,11 +617,11 @@ def _describe(target, sensor, lidar_measurement, correspondences, lidar_range_si
                 else "every scan point on the ICP-fitted template")
         if keypoints:
             match = "known correspondences"
-        elif correspondences == "paper":
+        elif correspondences == "centroid":
             match = "centroid-aligned nearest-neighbour correspondences to the template (paper III-D)"
         else:
-            match = ("centroid-aligned nearest neighbours (paper III-D), then point-to-surface "
-                     "refinement without centroid alignment")
+            match = ("centroid-aligned nearest neighbours (paper III-D), then every point to the closest "
+                     "surface point (point-to-plane)")
         noise = "exact ranges" if lidar_range_sigma_m == 0 else f"range noise {lidar_range_sigma_m * 1e3:.3g} mm"
         text = f"lidar measured by {what}; {match}; {noise}"
     else:
@@ -704,7 +638,8 @@ def _describe(target, sensor, lidar_measurement, correspondences, lidar_range_si
 
 EPILOG = """examples:
   rigcal study mocap --trials 20
-  rigcal study mocap --lidar-measurement points --correspondences nearest --lidar-noise-mm 10
+  rigcal study mocap --lidar-measurement keypoints      # the paper's corner-based simulation
+  rigcal study mocap --lidar-noise-mm 10 --mcs-noise-mm 0.15
   rigcal study mocap --target cylinder --sensor lidar --trials 20
   rigcal study mocap --target diamond --sensor camera --mcs-noise-mm 0.15
 """
@@ -721,11 +656,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
                         help="motion-capture position noise per axis [mm] (default 0: exact; Vicon 0.15)")
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     parser.add_argument("--overlapping", action="store_true", help="camera looks forward with the lidar")
-    parser.add_argument("--lidar-measurement", choices=("keypoints", "points"), default="keypoints",
-                        help="lidar: diamond corners from ICP (paper's simulation, default) or all on-target points")
-    parser.add_argument("--correspondences", choices=("paper", "nearest"), default="paper",
-                        help="targets without keypoints: paper's centroid-aligned matching (default) or "
-                        "refined point-to-surface")
+    parser.add_argument("--lidar-measurement", choices=("keypoints", "points"), default="points",
+                        help="lidar: every on-target point (default; the paper's choice on real data) or the "
+                        "diamond's corners from ICP (the paper's simulation)")
+    parser.add_argument("--correspondences", choices=CORRESPONDENCES, default="surface",
+                        help="points without keypoints: closest surface point after the paper's matching "
+                        "(default) or the paper's centroid-aligned matching throughout")
     parser.add_argument("--lidar-noise-mm", type=float, default=0.0, help="lidar range noise [mm] (default 0)")
     parser.add_argument("--same-data", action="store_true",
                         help="every trial sees the same captures, only the initial calibration changes")
@@ -751,8 +687,8 @@ def run(args: argparse.Namespace) -> tuple[str, int]:
             target=args.target, sensor=args.sensor, measurements=tuple(args.measurements),
             trials=args.trials, mcs_noise_m=args.mcs_noise_mm * 1e-3, seed=args.seed,
             overlapping=bool(getattr(args, "overlapping", False)),
-            lidar_measurement=getattr(args, "lidar_measurement", "keypoints"),
-            correspondences=getattr(args, "correspondences", "paper"),
+            lidar_measurement=getattr(args, "lidar_measurement", "points"),
+            correspondences=getattr(args, "correspondences", "surface"),
             lidar_range_sigma_m=getattr(args, "lidar_noise_mm", 0.0) * 1e-3,
             same_data=bool(getattr(args, "same_data", False)),
         )

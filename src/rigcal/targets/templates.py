@@ -39,13 +39,15 @@ from rigcal.targets.circle_board import board_centres
 from rigcal.targets.definition import CropBox, Target, TargetKind
 
 __all__ = [
+    "REQUIRED_DIMS",
     "analytic_target",
+    "board_from_dims",
     "checkerboard_inner_corners",
     "circle_board_target",
     "cylinder_target",
     "diamond_corners",
     "diamond_target",
-    "surface_distance_m",
+    "plate_centre_y",
 ]
 
 DEFAULT_RESOLUTION_M = 0.005
@@ -181,7 +183,14 @@ def cylinder_target(radius_m: float, height_m: float, *, name: str = "cylinder",
 # circle board
 
 
-def _plate_centre_y(board: BoardGeometry, holes_above_plate_centre_m: float) -> float:
+def board_from_dims(dims: Mapping[str, float]) -> BoardGeometry:
+    """The circle board's geometry from a target's ``dims`` (defaults for what is missing)."""
+    fields = ("spacing_m", "reflector_offset_m", "hole_diameter_m", "width_m", "height_m")
+    return BoardGeometry(**{f: float(dims[f]) for f in fields if f in dims})
+
+
+def plate_centre_y(board: BoardGeometry, holes_above_plate_centre_m: float) -> float:
+    """y [m] of the plate's centre in the board frame (hole pattern centred at the origin)."""
     off = float(holes_above_plate_centre_m)
     if not math.isfinite(off):
         raise InputError(f"holes_above_plate_centre_m must be finite, got {off!r}")
@@ -204,7 +213,7 @@ def circle_board_target(board: BoardGeometry = BoardGeometry(), *,
     the hole centres (TL, TR, BL, BR); template: plate points outside the holes, the plate's
     outline and the hole rims."""
     res = _positive(resolution_m, "resolution_m")
-    cy = _plate_centre_y(board, holes_above_plate_centre_m)
+    cy = plate_centre_y(board, holes_above_plate_centre_m)
     w, hgt = board.width_m, board.height_m
     lo, hi = np.array([-w / 2, cy - hgt / 2]), np.array([w / 2, cy + hgt / 2])
     centres = board_centres(board)
@@ -231,7 +240,8 @@ def circle_board_target(board: BoardGeometry = BoardGeometry(), *,
 # from a kind and dims
 
 
-_REQUIRED = {
+#: the dims each analytic kind needs
+REQUIRED_DIMS = {
     TargetKind.CHECKERBOARD_DIAMOND: ("side_m", "square_m", "rows", "cols"),
     TargetKind.CYLINDER: ("radius_m", "height_m"),
     TargetKind.CIRCLE_BOARD: (),
@@ -248,10 +258,10 @@ def analytic_target(kind: TargetKind | str, dims: Mapping[str, float], *, name: 
     k = TargetKind.parse(kind)
     if k is TargetKind.CUSTOM:
         raise InputError("a custom target has no analytic template; give a template cloud")
-    missing = [d for d in _REQUIRED[k] if d not in dims]
+    missing = [d for d in REQUIRED_DIMS[k] if d not in dims]
     if missing:
         raise InputError(
-            f"analytic {k.value} target needs dims {', '.join(_REQUIRED[k])}; missing "
+            f"analytic {k.value} target needs dims {', '.join(REQUIRED_DIMS[k])}; missing "
             f"{', '.join(missing)}"
         )
     extra: dict[str, Any] = {"name": name or k.value}
@@ -262,65 +272,6 @@ def analytic_target(kind: TargetKind | str, dims: Mapping[str, float], *, name: 
                               **extra)
     if k is TargetKind.CYLINDER:
         return cylinder_target(dims["radius_m"], dims["height_m"], **extra)
-    fields = ("spacing_m", "reflector_offset_m", "hole_diameter_m", "width_m", "height_m")
-    board = BoardGeometry(**{f: float(dims[f]) for f in fields if f in dims})
+    board = board_from_dims(dims)
     return circle_board_target(board, holes_above_plate_centre_m=float(
         dims.get("holes_above_plate_centre_m", -0.3)), **extra)
-
-
-# --------------------------------------------------------------------------------------------
-# distance to the ideal surface
-
-
-def _dist_to_segments_2d(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(N,) distance of 2D points p (N, 2) to the nearest of segments a[i]-b[i] (S, 2)."""
-    ab = b - a
-    ap = p[:, None, :] - a[None, :, :]
-    s = np.clip(np.einsum("nsk,sk->ns", ap, ab) / np.einsum("sk,sk->s", ab, ab), 0.0, 1.0)
-    closest = a[None] + s[..., None] * ab[None]
-    return np.min(np.linalg.norm(p[:, None, :] - closest, axis=2), axis=1)
-
-
-def surface_distance_m(target: Target, points_target: Any) -> np.ndarray:
-    """(N,) distance [m] from points (N, 3) in the target frame to the target's ideal surface,
-    from its ``kind`` and ``dims``: the diamond plate (filled square), the closed cylinder
-    (lateral surface and end discs) or the circle board plate (rectangle minus the holes).
-    InputError for a custom target or missing dims."""
-    p = np.asarray(points_target, dtype=float).reshape(-1, 3)
-    k = target.kind
-    if k is TargetKind.CUSTOM:
-        raise InputError(f"target '{target.name}': a custom target has no analytic surface")
-    missing = [d for d in _REQUIRED[k] if d not in target.dims]
-    if missing:
-        raise InputError(f"target '{target.name}': surface distance needs dims "
-                         f"{', '.join(missing)}")
-    dims = target.dims
-    if k is TargetKind.CHECKERBOARD_DIAMOND:
-        sq = float(dims["square_m"])
-        c = np.array([(int(dims["cols"]) + 1) * sq / 2.0, (int(dims["rows"]) + 1) * sq / 2.0])
-        h = float(dims["side_m"]) / math.sqrt(2.0)
-        # rotate by 45 deg: the diamond becomes an axis-aligned square of half-side side/2
-        u = (p[:, 0] - c[0] + p[:, 1] - c[1]) / math.sqrt(2.0)
-        v = (p[:, 1] - c[1] - (p[:, 0] - c[0])) / math.sqrt(2.0)
-        half = h / math.sqrt(2.0)
-        du = np.maximum(np.abs(u) - half, 0.0)
-        dv = np.maximum(np.abs(v) - half, 0.0)
-        return np.sqrt(du**2 + dv**2 + p[:, 2] ** 2)
-    if k is TargetKind.CYLINDER:
-        R, H = float(dims["radius_m"]), float(dims["height_m"])
-        rz = np.column_stack([np.hypot(p[:, 0], p[:, 1]), p[:, 2]])
-        a = np.array([[R, -H], [0.0, 0.0], [0.0, -H]])
-        b = np.array([[R, 0.0], [R, 0.0], [R, -H]])
-        return _dist_to_segments_2d(rz, a, b)
-    board = BoardGeometry(**{f: float(dims[f]) for f in
-                             ("spacing_m", "reflector_offset_m", "hole_diameter_m", "width_m",
-                              "height_m") if f in dims})
-    cy = _plate_centre_y(board, float(dims.get("holes_above_plate_centre_m", -0.3)))
-    w, hgt = board.width_m / 2, board.height_m / 2
-    dx = np.maximum(np.abs(p[:, 0]) - w, 0.0)
-    dy = np.maximum(np.abs(p[:, 1] - cy) - hgt, 0.0)
-    d_out = np.hypot(dx, dy)
-    radius = board.hole_diameter_m / 2
-    dc = np.linalg.norm(p[:, None, :2] - board_centres(board)[None, :, :2], axis=2)
-    d_hole = np.max(np.maximum(radius - dc, 0.0), axis=1)  # depth inside a hole, 0 outside
-    return np.sqrt((d_out + d_hole) ** 2 + p[:, 2] ** 2)

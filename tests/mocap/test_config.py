@@ -108,6 +108,18 @@ def test_reads_every_source_and_definition(folder):
     np.testing.assert_allclose(init["camera1"], T_BC, atol=1e-12)  # composed along the graph
 
 
+def test_lidar_points_and_correspondences_are_chosen_in_the_config(folder):
+    cfg = load_mocap_config(folder / "mocap.yaml")
+    assert cfg.targets["diamond"].target.use_lidar_keypoints  # the definition file's choice
+    assert cfg.options.correspondences == "surface"
+    text = CONFIG.replace("definition: CheckerboardTargetSim.json}",
+                          "definition: CheckerboardTargetSim.json, use_lidar_keypoints: false}")
+    text = text.replace("loss: huber", "loss: huber, correspondences: centroid")
+    cfg = _parse(folder, text)
+    assert not cfg.targets["diamond"].target.use_lidar_keypoints
+    assert cfg.options.correspondences == "centroid"
+
+
 def test_defaults_and_a_folder_recording(folder):
     (folder / "rec").mkdir()
     text = """\
@@ -192,6 +204,13 @@ ERRORS = [
      r"options\.loss: expected one of linear, huber, cauchy, got 'tukey'"),
     ("bad target pose sigma", _replace("[0.0005, 0.00015]", "[0.0005]"),
      r"options\.target_pose_sigma: expected \[rotation_rad, translation_m\]"),
+    ("bad correspondences", _replace("loss: huber", "loss: huber, correspondences: magic"),
+     r"options\.correspondences: expected one of surface, centroid, got 'magic'"),
+    ("bad use_lidar_keypoints", _replace("definition: CheckerboardTargetSim.json}",
+                                         "definition: CheckerboardTargetSim.json, use_lidar_keypoints: 1}"),
+     r"mocap\.targets\.diamond\.use_lidar_keypoints: expected true or false, got 1"),
+    ("cylinder has no lidar keypoints", _replace("template: cyl.pcd", "template: cyl.pcd, use_lidar_keypoints: true"),
+     r"mocap\.targets\.cylinder\.use_lidar_keypoints: target 'cylinder' has no lidar keypoints"),
     ("unknown option", _replace("loss: huber", "loss: huber, speed: 3"),
      r"options: unknown key\(s\) 'speed'"),
     ("unconnected frame", _replace("frame_id: camera_link", "frame_id: camera_optical"),

@@ -269,6 +269,29 @@ def test_recovers_the_extrinsics(scene, run):
     assert {o.measured.shape for o in r.observations if o.sensor == "lidar1"} == {(4, 3)}
 
 
+def test_lidar_points_on_the_plate_beat_its_corners(scene, run, tmp_path):
+    # the same bag, the lidar measured by every point on the diamond (use_lidar_keypoints:
+    # false) and tied to the plate's surface: the scans are exact, so is the calibration
+    folder = scene.path.parent
+    text = config_text(recording=str(scene.path)).replace(
+        "definition: CheckerboardTargetSim.json}", f"definition: {folder / 'CheckerboardTargetSim.json'}, "
+        "use_lidar_keypoints: false}").replace("initial_calibration: initial.json",
+                                               f"initial_calibration: {folder / 'initial.json'}").replace(
+        "intrinsics: F1_sim.json", f"intrinsics: {folder / 'F1_sim.json'}")
+    (tmp_path / "points.yaml").write_text(text)
+    r = run_mocap(load_mocap_config(tmp_path / "points.yaml"))
+    corners, _ = run
+    lidar = [o for o in r.observations if o.sensor == "lidar1"]
+    assert lidar and all(o.keypoints_target is None and len(o.measured) > 20 for o in lidar)
+    t_pts, r_pts = _errors(r.final["lidar1"], scene.rig.T_robot_lidar)
+    t_kp, r_kp = _errors(corners.final["lidar1"], scene.rig.T_robot_lidar)
+    print(f"lidar points {t_pts:.4f} mm {r_pts:.5f} deg; corners {t_kp:.3f} mm {r_kp:.4f} deg")
+    assert t_pts < 0.01 and r_pts < 0.001
+    assert t_pts < 0.05 * t_kp and r_pts < 0.05 * r_kp
+    kept = [d for d in r.diagnostics if d.kept and d.sensor == "lidar1"]
+    assert all(d.residual_final < 1e-4 < d.residual_initial for d in kept)  # metres to the plate
+
+
 def _inside(t: int, spans, pad_ns: int = 0) -> bool:
     return any(a - pad_ns <= t < b + pad_ns for a, b in spans)
 

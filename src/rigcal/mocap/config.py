@@ -7,7 +7,8 @@ Example (paths are relative to the file's folder)::
       robot: {topic: /vicon/robot/robot}      # or {tf_child: robot, tf_parent: world}
                                               # or {csv: robot.csv, time_unit: s}
       targets:
-        diamond: {topic: /vicon/diamond/diamond, definition: CheckerboardTargetSim.json}
+        diamond: {topic: /vicon/diamond/diamond, definition: CheckerboardTargetSim.json,
+                  use_lidar_keypoints: false}   # lidar: every point on the plate, not corners
         board:   {topic: /vicon/board/board,
                   analytic: {kind: checkerboard_diamond, side_m: 0.5, square_m: 0.029,
                              rows: 6, cols: 7}}
@@ -24,7 +25,8 @@ Example (paths are relative to the file's folder)::
          intrinsics: F1_sim.json, sigma_px: 1.0}
     extraction: {max_linear_mps: 0.1, max_angular_dps: 5, motion_window_s: 0.5,
                  sigma_translation_m: 0.03, sigma_rotation_deg: 5}
-    options: {loss: huber, target_pose_sigma: [0.0005, 0.00015]}   # MocapOptions fields
+    options: {loss: huber, correspondences: surface,                # MocapOptions fields
+              target_pose_sigma: [0.0005, 0.00015]}
     report: {overlays_per_sensor: 3}
 
 Every pose source gives ``T_M_body``: the tracked body's pose in the mocap frame ``M``. A
@@ -49,7 +51,7 @@ from __future__ import annotations
 
 import math
 import os
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from types import MappingProxyType
 from typing import Any, Mapping
@@ -82,7 +84,7 @@ _TOP_KEYS = ("recording", "mocap", "initial_calibration", "robot_frame", "sensor
              "extraction", "options", "report")
 _MOCAP_KEYS = ("robot", "targets", "max_gap_s")
 _POSE_KEYS = ("topic", "tf_child", "tf_parent", "csv", "time_unit")
-_TARGET_KEYS = _POSE_KEYS + ("definition", "analytic", "template", "dims", "kind")
+_TARGET_KEYS = _POSE_KEYS + ("definition", "analytic", "template", "dims", "kind", "use_lidar_keypoints")
 _SENSOR_COMMON = ("name", "kind", "topic", "frame_id")
 _LIDAR_KEYS = _SENSOR_COMMON + ("sigma_m", "vertical_step_deg", "horizontal_step_deg",
                                 "min_range_m", "max_range_m", "elevation_fov_deg",
@@ -324,6 +326,19 @@ def _dims(value: Any, where: str) -> dict[str, float]:
 
 
 def _target(name: Any, raw: Any, where: str, base_dir: Path) -> TargetSpec:
+    spec = _target_definition(name, raw, where, base_dir)
+    where = f"{where}.{name}"
+    if "use_lidar_keypoints" not in raw:
+        return spec
+    value = raw["use_lidar_keypoints"]
+    if not isinstance(value, bool):
+        raise InputError(f"{where}.use_lidar_keypoints: expected true or false, got {value!r}")
+    if value and spec.target.lidar_keypoints is None:
+        raise InputError(f"{where}.use_lidar_keypoints: target '{name}' has no lidar keypoints")
+    return replace(spec, target=spec.target.with_params(use_lidar_keypoints=value))
+
+
+def _target_definition(name: Any, raw: Any, where: str, base_dir: Path) -> TargetSpec:
     if not isinstance(name, str) or not name.strip():
         raise InputError(f"{where}: target names must be non-empty strings, got {name!r}")
     where = f"{where}.{name}"

@@ -19,8 +19,10 @@ only part of the target (a lidar sees the near half of a cylinder: the centroids
 centimetres). With ``correspondences="surface"`` (the default) the paper's matching only gets
 the calibration close; then every lidar point is tied to the closest point of the target's
 surface (:class:`rigcal.targets.surface.TargetSurface`, analytic for the diamond, cylinder and
-circle board) by a point-to-plane residual, re-linearised until the calibration stops changing.
-On exact data this recovers the calibration exactly; cameras keep the paper's matching.
+circle board): the residual is the point's distance to the surface, its closest point found
+again at every evaluation inside the solve (fixed point-to-plane correspondences would cycle
+at the plate's edges on noisy data). On exact data this recovers the calibration exactly;
+cameras keep the paper's matching.
 
 With ``target_pose_sigma`` set, target poses are estimated too under a prior from the MCS
 (small per-target corrections); sensors that see the same target at the same time then share
@@ -132,8 +134,12 @@ class MocapOptions:
     handover_translation_m: float = 1e-4
     handover_rotation_rad: float = 1e-4
     max_correspondence_iterations: int = 30
+    #: correspondences have settled when no sensor's calibration changes by more than these
+    #: or by more than ``settle_fraction`` of its own standard deviation (on noisy data the
+    #: nearest neighbours can keep switching by amounts far below the uncertainty)
     translation_tolerance_m: float = 1e-6
     rotation_tolerance_rad: float = 1e-7
+    settle_fraction: float = 0.01
     #: drop correspondences farther than this many sigma after alignment (0 = keep all)
     max_correspondence_sigma: float = 0.0
     #: (rotation [rad], translation [m]) std of the MCS target poses: when set, every target
@@ -234,11 +240,24 @@ def _target_blocks(observations, options) -> list[int]:
     return out
 
 
+def _add(items, key, block, board, points, measured, normals=None) -> None:
+    if len(points) == 0:
+        return
+    d = items.setdefault(key, {"frame": [], "points": [], "measured": [], "board": [], "normals": []})
+    d["frame"] += [block] * len(points)
+    d["points"].append(points)
+    d["measured"].append(measured)
+    d["board"].append(np.full(len(points), board))
+    if normals is not None:
+        d["normals"].append(normals)
+
+
 def _build(sensors, observations, poses, surfaces, options, boards=None, block_poses=None, phase="centroid"):
     blocks = [PoseBlock(s.name, poses[s.name]) for s in sensors]
     names = {s.name: s for s in sensors}
-    # (sensor, model) -> items of one residual batch
-    items: dict[tuple[str, str], dict[str, list]] = {}
+    # (sensor, model, target, part) -> the items of one residual batch; point and pixel
+    # batches hold every target, surface batches one target each
+    items: dict[tuple[str, str, str, str], dict[str, list]] = {}
     target_of = _target_blocks(observations, options)
     free = options.target_pose_sigma is not None
     made: dict[int, str] = {}
@@ -267,33 +286,29 @@ def _build(sensors, observations, poses, surfaces, options, boards=None, block_p
             if pts is None:
                 continue
             meas = o.measured[keep]
-        if len(pts) == 0:
-            continue
-        d = items.setdefault((o.sensor, model), {"frame": [], "points": [], "measured": [], "board": [], "normals": []})
-        d["frame"] += [block] * len(pts)
-        d["points"].append(pts)
-        d["measured"].append(meas)
-        d["board"].append(np.full(len(pts), i))
-        if normals is not None:
-            d["normals"].append(normals)
+        # a surface batch per target: its closest points follow the poses inside the solve
+        part = "surface" if model == MODEL_SURFACE else ""
+        _add(items, (o.sensor, model, o.target if part else "", part), block, i, pts, meas, normals)
     batches = []
-    for (name, model), d in items.items():
+    for (name, model, target, part), d in items.items():
         s = names[name]
         meas = np.concatenate(d["measured"])
         surface = model == MODEL_SURFACE
+        sigma = np.full((len(meas), 1 if surface else meas.shape[1]), s.sigma)
         batches.append(
             Observations(
-                label=f"{ROBOT}-{name}" + (":surface" if surface else ""),
+                label=f"{ROBOT}-{name}" + (f":{part}:{target}" if part else ""),
                 sensor=name,
                 model=model,
                 frame=tuple(d["frame"]),
                 observer=(name,) * len(d["frame"]),
                 points=np.concatenate(d["points"]),
                 measured=meas,
-                sigma=np.full((len(meas), 1 if surface else meas.shape[1]), s.sigma),
+                sigma=sigma,
                 board=np.concatenate(d["board"]),
                 camera=s.camera,
                 normals=np.concatenate(d["normals"]) if surface else None,
+                surface=surfaces[target] if surface else None,
             )
         )
     limits = []
@@ -314,6 +329,24 @@ def _build(sensors, observations, poses, surfaces, options, boards=None, block_p
         rot, trans = options.target_pose_sigma
         priors = (PosePriors("mcs", tuple(prior_blocks), np.array(prior_T), np.array([rot] * 3 + [trans] * 3)),)
     return Problem(tuple(blocks), tuple(batches), tuple(limits), priors)
+
+
+def _settled(sol, poses, sensors, options: MocapOptions) -> tuple[bool, float, float]:
+    """Whether no sensor's calibration moved by more than the tolerances (or the fraction of
+    its std) in this solve; and the largest translation [m] and rotation [rad] change."""
+    settled, worst_t, worst_r = True, 0.0, 0.0
+    for s in sensors:
+        new, old = sol.poses[s.name], poses[s.name]
+        dt = float(np.linalg.norm(new[:3, 3] - old[:3, 3]))
+        dr = float(np.linalg.norm(so3_log(old[:3, :3].T @ new[:3, :3])))
+        cov = sol.pose_covariance(s.name)
+        std_r = float(np.sqrt(max(np.trace(cov[:3, :3]), 0.0)))
+        std_t = float(np.sqrt(max(np.trace(cov[3:, 3:]), 0.0)))
+        tol_t = max(options.translation_tolerance_m, options.settle_fraction * std_t)
+        tol_r = max(options.rotation_tolerance_rad, options.settle_fraction * std_r)
+        settled &= dt <= tol_t and dr <= tol_r
+        worst_t, worst_r = max(worst_t, dt), max(worst_r, dr)
+    return settled, worst_t, worst_r
 
 
 def calibrate_mocap(
@@ -360,20 +393,17 @@ def calibrate_mocap(
             block_poses = {k: v for k, v in sol.poses.items() if k.startswith("target:")}
             if not sol.converged:
                 raise ConvergenceError(f"mocap calibration did not converge: {sol.status}")
-            change_t = max(float(np.linalg.norm(sol.poses[s.name][:3, 3] - poses[s.name][:3, 3])) for s in sensors)
-            change_r = max(
-                float(np.linalg.norm(so3_log(poses[s.name][:3, :3].T @ sol.poses[s.name][:3, :3]))) for s in sensors
-            )
+            settled, change_t, change_r = _settled(sol, poses, sensors, options)
             poses = {s.name: sol.poses[s.name] for s in sensors}
             if not needs_iterations:
                 break
             if handover and phase == "centroid":
                 # the paper's matching only has to get close: its fixed point is biased anyway
-                settled = change_t <= options.handover_translation_m and change_r <= options.handover_rotation_rad
-                if settled or phase_it >= options.max_correspondence_iterations:
+                close = change_t <= options.handover_translation_m and change_r <= options.handover_rotation_rad
+                if close or phase_it >= options.max_correspondence_iterations:
                     phase, phase_it = "surface", 0
                 continue
-            if change_t <= options.translation_tolerance_m and change_r <= options.rotation_tolerance_rad:
+            if settled:
                 break
             if phase_it >= options.max_correspondence_iterations:
                 raise ConvergenceError(

@@ -17,6 +17,12 @@ the surface normal there, both in A,
     y = T_W_A^-1 @ T_W_B @ z          (the measured point in A's frame)
     r = n . (y - p) / sigma           (signed point-to-plane distance, one row per point)
 
+Given a ``surface`` (anything with ``closest(y) -> (p, n)``, e.g. a
+:class:`rigcal.targets.surface.TargetSurface`) ``p`` and ``n`` are found again at every
+evaluation: ``r`` is then the distance of ``y`` to the surface itself and ``n^T dy`` its
+exact gradient (the closest point moves along the surface, orthogonal to ``n``), so one
+least-squares solve minimises point-to-surface distances with no correspondence loop.
+
 Poses are
 perturbed on the right, ``T <- T @ exp(xi)`` with ``xi = (omega, v)``, so Jacobians are
 with respect to (omega, v) expressed in each pose's own frame.
@@ -73,13 +79,14 @@ def observation_residuals(
     model: str,
     camera=None,
     normals_A: np.ndarray | None = None,
+    surface=None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Whitened residuals (n, d) and Jacobians (n, d, 6) for frame A and observer B.
 
-    ``model`` MODEL_SURFACE needs ``normals_A`` (n, 3) unit normals at ``points_A``; its
-    ``measured`` are points in B and ``sigma`` is (n, 1)."""
+    ``model`` MODEL_SURFACE needs ``normals_A`` (n, 3) unit normals at ``points_A`` or a
+    ``surface`` to find both; its ``measured`` are points in B and ``sigma`` is (n, 1)."""
     if model == MODEL_SURFACE:
-        return _surface_residuals(T_W_A, T_W_B, points_A, normals_A, measured, sigma)
+        return _surface_residuals(T_W_A, T_W_B, points_A, normals_A, measured, sigma, surface)
     x, JA, JB = point_in_observer(T_W_A, T_W_B, points_A)
     if model == MODEL_POINT:
         h, H = x, None
@@ -103,11 +110,13 @@ def observation_residuals(
     return r, JA, JB
 
 
-def _surface_residuals(T_W_A, T_W_B, points_A, normals_A, measured_B, sigma):
-    if normals_A is None:
-        raise ValueError("surface residuals need the surface normals at the points")
+def _surface_residuals(T_W_A, T_W_B, points_A, normals_A, measured_B, sigma, surface=None):
     # the measured point seen from A: the roles of point_in_observer swap
     y, JB, JA = point_in_observer(T_W_B, T_W_A, measured_B)
+    if surface is not None:
+        points_A, normals_A = surface.closest(y)
+    if normals_A is None:
+        raise ValueError("surface residuals need the surface normals at the points, or the surface")
     inv_sigma = 1.0 / sigma  # (n, 1)
     r = np.einsum("ni,ni->n", normals_A, y - points_A)[:, None] * inv_sigma
     JA = np.einsum("ni,nij->nj", normals_A, JA)[:, None, :] * inv_sigma[..., None]

@@ -64,7 +64,8 @@ class Observations:
     MODEL_SURFACE turns this around: ``measured[i]`` (3,) is a point measured by the observer
     on the surface of frame ``frame[i]``, ``points[i]`` its closest surface point and
     ``normals[i]`` (3,) the surface normal there (both in that frame); ``sigma[i]`` (1,) is the
-    std of the point-to-plane distance. ``board[i]`` is the board placement the item belongs to; ``label`` names the batch
+    std of the point-to-plane distance; with ``surface`` set the closest points follow the
+    poses (point-to-surface distance). ``board[i]`` is the board placement the item belongs to; ``label`` names the batch
     (a sensor pair such as ``"lidar1-camera1"`` or a sensor); ``sensor`` names the observer.
     """
 
@@ -79,6 +80,9 @@ class Observations:
     board: np.ndarray
     camera: object | None = None  # a rigcal.sensors.camera model, for MODEL_CAMERA
     normals: np.ndarray | None = None  # (n, 3) unit surface normals, for MODEL_SURFACE
+    #: for MODEL_SURFACE: ``closest(points) -> (points, normals)`` in the frame's coordinates;
+    #: given, the closest points and normals are found again at every evaluation
+    surface: object | None = None
 
     def __post_init__(self) -> None:
         if self.model not in MEASURED_DIM:
@@ -346,7 +350,7 @@ def _evaluate(problem: Problem, layout: _Layout, T: np.ndarray, loss: str, c: fl
             continue
         r, JA, JB = observation_residuals(
             T[ia], T[ib], batch.points, batch.measured, batch.sigma, batch.model, batch.camera,
-            batch.normals,
+            batch.normals, batch.surface,
         )
         raw.append(r)
         s = np.sum(r * r, axis=1)

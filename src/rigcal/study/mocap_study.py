@@ -241,9 +241,9 @@ class StudyTable:
 
         for r in sorted(self.rows, key=lambda r: -r.measurements):
             p = paper.get(r.measurements)
-            ours = (f"{r.measurements:>3} {r.trials:>2}/{r.trials + r.failed:<2} | {pm(r.translation_mm, '.3f'):>17} "
-                    f"{pm(r.translation_norm_diff_mm, '.3f'):>17} | {pm(r.rotation_deg, '.2e'):>19} "
-                    f"{pm(r.rotation_angle_diff_deg, '.2e'):>19} | {pm(r.residual, '.3f'):>15} || ")
+            ours = (f"{r.measurements:>3} {r.trials:>2}/{r.trials + r.failed:<2} | {pm(r.translation_mm, '.3g'):>17} "
+                    f"{pm(r.translation_norm_diff_mm, '.3g'):>17} | {pm(r.rotation_deg, '.2e'):>19} "
+                    f"{pm(r.rotation_angle_diff_deg, '.2e'):>19} | {pm(r.residual, '.3g'):>15} || ")
             theirs = (f"{pp(p[0]):>17} {pp(p[1]):>18} {pp(p[2]):>18}" if p else f"{'-':>17} {'-':>18} {'-':>18}")
             lines.append(ours + theirs)
         lines.append("")
@@ -432,16 +432,28 @@ def _residual(obs: Sequence[TargetObservation], kind: str, target: Target, T_est
     return float(next(iter(result.reprojection_px.values())))
 
 
-def _sensor_sigma(kind: str, target: Target) -> float:
+#: the lidar std [m] the calibration assumes for exact scans: the diamond's ICP corners scatter
+#: by a few mm (ring quantisation); points on a surface are exact up to this floor
+CORNER_SIGMA_M = 0.003
+POINT_SIGMA_FLOOR_M = 0.0005
+
+
+def _sensor_sigma(kind: str, target: Target, lidar_range_sigma_m: float = 0.0, corners: bool = False) -> float:
+    """The measurement std the calibration assumes (it weighs the residuals and sets the robust
+    loss's scale), as a user would set it for the sensor: the range noise for points on a
+    surface, the corner scatter for the diamond's corners (whichever is larger)."""
     if kind == LIDAR:
-        return 0.003 if target.kind is TargetKind.CHECKERBOARD_DIAMOND else 0.005
+        return max(CORNER_SIGMA_M if corners else POINT_SIGMA_FLOOR_M, lidar_range_sigma_m)
     return 0.1 if target.kind is TargetKind.CHECKERBOARD_DIAMOND else 0.7
 
 
-def _calibrate(obs, kind, rig: MocapRig, target: Target, T_init, T_true, trial, n, options) -> TrialResult:
+def _calibrate(obs, kind, rig: MocapRig, target: Target, T_init, T_true, trial, n, options,
+               lidar_range_sigma_m: float = 0.0) -> TrialResult:
     name = rig.name_of(kind)
     sk = SensorKind.LIDAR if kind == LIDAR else SensorKind.CAMERA
-    sensor = MocapSensor(name, sk, camera=rig.camera if kind == CAMERA else None, sigma=_sensor_sigma(kind, target))
+    corners = obs[0].keypoints_target is not None
+    sensor = MocapSensor(name, sk, camera=rig.camera if kind == CAMERA else None,
+                         sigma=_sensor_sigma(kind, target, lidar_range_sigma_m, corners))
     templates = {} if obs[0].keypoints_target is not None else {target.name: TargetSurface.of(target)}
     init_t = float(np.linalg.norm(T_init[:3, 3] - T_true[:3, 3]) * 1e3)
     init_r = math.degrees(_rotation_angle(T_true[:3, :3].T @ T_init[:3, :3]))
@@ -578,7 +590,8 @@ def run_mocap_study(
                                            f"only {len(obs)} measurements from {index} captures"))
                 continue
             t0 = time.perf_counter()
-            results.append(_calibrate(obs[:n], sensor, rig, tdef, T_init, T_true, trial, n, options))
+            results.append(_calibrate(obs[:n], sensor, rig, tdef, T_init, T_true, trial, n, options,
+                                      lidar_range_sigma_m))
             t_cal += time.perf_counter() - t0
         log.debug("mocap study trial %d: %d measurements from %d captures", trial, len(obs), index)
         if progress is not None:
@@ -620,8 +633,8 @@ def _describe(target, sensor, lidar_measurement, correspondences, lidar_range_si
         elif correspondences == "centroid":
             match = "centroid-aligned nearest-neighbour correspondences to the template (paper III-D)"
         else:
-            match = ("centroid-aligned nearest neighbours (paper III-D), then every point to the closest "
-                     "surface point (point-to-plane)")
+            match = ("centroid-aligned nearest neighbours (paper III-D), then every point's distance to the "
+                     "target's surface")
         noise = "exact ranges" if lidar_range_sigma_m == 0 else f"range noise {lidar_range_sigma_m * 1e3:.3g} mm"
         text = f"lidar measured by {what}; {match}; {noise}"
     else:

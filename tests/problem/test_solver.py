@@ -235,3 +235,39 @@ def test_fov_constraint_holds_and_matters_on_real_lidar_radar_pair(real_dataset)
     assert np.sum(el_free > max_el + 1e-3) >= 3
     # dropping the constraint lowers the cost: the limit is what holds the radar back
     assert free.cost < constrained.cost
+
+
+@pytest.mark.parametrize("block", ["A", "B"])
+def test_surface_jacobian_with_closest_points_found_at_every_evaluation(block):
+    """With a surface, the residual is the signed distance to it: its gradient is n^T dy."""
+    from rigcal.targets.surface import TargetSurface
+    from rigcal.targets.templates import cylinder_target
+
+    surface = TargetSurface.of(cylinder_target(0.2, 1.0))
+    rng = np.random.default_rng(4)
+    n = 20
+    T_W_A, T_W_B = _random_pose(rng), _random_pose(rng)
+    a = rng.uniform(0, 2 * np.pi, n)
+    y = np.column_stack([0.2 * np.cos(a), 0.2 * np.sin(a), rng.uniform(-0.8, -0.2, n)])
+    y[:, :2] *= rng.uniform(1.02, 1.2, (n, 1))  # off the lateral surface, away from the rims
+    z = (invert(T_W_B) @ T_W_A @ np.column_stack([y, np.ones(n)]).T).T[:, :3]
+    sigma = np.full((n, 1), 0.01)
+    TA, TB = np.repeat(T_W_A[None], n, 0), np.repeat(T_W_B[None], n, 0)
+
+    def f(TA_, TB_):
+        return observation_residuals(TA_, TB_, np.zeros((n, 3)), z, sigma, MODEL_SURFACE, surface=surface)
+
+    r, JA, JB = f(TA, TB)
+    np.testing.assert_allclose(r[:, 0] * 0.01, surface.distance(y), atol=1e-12)  # outside: +distance
+    J = JA if block == "A" else JB
+    h = 1e-6
+    fd = np.empty_like(J)
+    for j in range(6):
+        xi = np.zeros(6)
+        xi[j] = h
+        if block == "A":
+            rp, rm = f(TA @ se3_exp(xi), TB)[0], f(TA @ se3_exp(-xi), TB)[0]
+        else:
+            rp, rm = f(TA, TB @ se3_exp(xi))[0], f(TA, TB @ se3_exp(-xi))[0]
+        fd[..., j] = (rp - rm) / (2 * h)
+    np.testing.assert_allclose(J, fd, rtol=1e-5, atol=1e-5 * float(np.max(np.abs(J))))

@@ -361,6 +361,22 @@ def test_synthetic_board_ordered_by_the_prediction_at_any_roll(roll_deg):
     assert dt < 0.002 and dr < 0.2
 
 
+def test_a_grid_unlike_the_prediction_is_refused():
+    """A board turned 45 degrees in its plane from where the mocap predicts it: no ordering of
+    the detected grid matches the prediction, so the detection is refused rather than given
+    wrong correspondences."""
+    T = board_pose(20.0, 45.0)
+    img = render_board(T, seed=3)
+    T_exp = board_pose(20.0, 0.0)
+    f = extract_checkerboard(img, CAM, (COLS, ROWS), GRID, T_exp,
+                             uncertainty=PoseUncertainty(0.03, math.radians(3.0), 3.0))
+    assert not f.ok and f.reason == "pattern_size_mismatch", f
+    assert "shifted or transposed grid" in f.detail
+    m = extract_checkerboard(img, CAM, (COLS, ROWS), GRID, T_exp, max_order_residual_squares=10.0,
+                             uncertainty=PoseUncertainty(0.03, math.radians(3.0), 3.0))
+    assert m.ok and m.quality["order_residual_px"] > 0.5 * 1100 * SQUARE / 1.2
+
+
 def test_order_grid_picks_the_half_turn():
     grid = np.stack(np.meshgrid(np.arange(4.0), np.arange(3.0)), -1).reshape(-1, 2) * 10
     shuffled = grid.reshape(3, 4, 2)[::-1, ::-1].reshape(-1, 2)

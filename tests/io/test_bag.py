@@ -146,6 +146,21 @@ def test_bag_round_trip_gives_the_same_frames(tmp_path, fmt):
 
 
 @pytest.mark.parametrize("fmt", FORMATS)
+def test_raw_messages_of_chosen_topics_in_bag_order(tmp_path, fmt):
+    path = write_recording(bag_path(tmp_path, fmt), make_frames(), fmt)
+    with open_recording(path) as rec:
+        got = list(rec.messages(["/camera/camera_info", "/radar/detections"]))
+        with pytest.raises(InputError, match="topic /x not in bag"):
+            list(rec.messages(["/x"]))
+    assert sorted((t, m) for t, m, _, _ in got) == [("/camera/camera_info", "sensor_msgs/msg/CameraInfo")] + [
+        ("/radar/detections", "sensor_msgs/msg/PointCloud2")] * 3
+    stamps = [r for _, _, r, _ in got]
+    assert stamps == sorted(stamps) and len(got) == 4
+    info = next(m for t, _, _, m in got if t == "/camera/camera_info")
+    assert int(info.width) == 8 and int(info.height) == 6
+
+
+@pytest.mark.parametrize("fmt", FORMATS)
 def test_time_window_and_subset_of_sensors(tmp_path, fmt):
     path = write_recording(bag_path(tmp_path, fmt), make_frames(), fmt)
     with open_recording(path) as rec:

@@ -491,6 +491,7 @@ def extract_checkerboard(
     estimate_pose: bool = True,
     black_level: int = 25,
     sb_flags: int = cv2.CALIB_CB_ACCURACY,
+    max_order_residual_squares: float = 0.5,
     sensor: str = "",
     t_ns: int | None = None,
     target: str = "checkerboard",
@@ -502,7 +503,11 @@ def extract_checkerboard(
     same grid layout (the ``keypoints_camera`` of a target file). ``T_camera_target_expected``
     (4, 4) the mocap-predicted pose: it decides whether the target is in view, where to crop
     (grown by ``uncertainty`` and ``crop_margin_px``) and which of the grid's symmetric orderings
-    is right. Without it the whole image (or ``crop``) is searched and OpenCV's order is kept.
+    is right; a detected grid whose best ordering still differs from the prediction by more
+    than ``max_order_residual_squares`` squares on average (after removing the mean offset) is
+    refused: OpenCV can return a shifted or transposed sub-grid that takes in T-junctions of the
+    board's border. Without it the whole image (or ``crop``) is searched and OpenCV's order is
+    kept.
     ``crop`` (a :class:`PixelBox`) overrides the predicted region.
 
     With ``estimate_pose`` the pose comes from :func:`solve_pnp`; with ``outline_target``
@@ -581,6 +586,12 @@ def extract_checkerboard(
         expected_px, _ = camera.project(transform_points(T_exp, kp))
         corners, sym, err, runner = order_grid(corners, (cols, rows), expected_px)
         quality.update(order_residual_px=err, order_runner_up_px=runner, orientation_guided=1.0)
+        if square_px is not None and err > max_order_residual_squares * square_px:
+            return ExtractionFailure(
+                sensor, t_ns, PATTERN_SIZE_MISMATCH,
+                f"the corner grid differs from the predicted one by {err:.1f} px on average "
+                f"(squares are {square_px:.1f} px): a shifted or transposed grid",
+            )
     else:
         quality["orientation_guided"] = 0.0
     extras = {"crop_box": np.array(box, dtype=float)}

@@ -279,6 +279,14 @@ class Recording:
                 ) from exc
             yield conn, int(recv_ns), msg
 
+    def messages(self, topics: Sequence[str]) -> Iterator[tuple[str, str, int, Any]]:
+        """(topic, message type, receive time [ns], deserialized message) for ``topics``, in
+        bag order. InputError names an unknown topic, unreadable bag data or a message that
+        does not decode."""
+        connections = [c for t in topics for c in self._topic(t).connections]
+        for conn, recv_ns, msg in self._messages(connections):
+            yield conn.topic, conn.msgtype, recv_ns, msg
+
     def camera_info(self, topic: str) -> CameraInfo:
         """The first ``sensor_msgs/CameraInfo`` on ``topic``."""
         info = self._topic(topic)

@@ -35,7 +35,7 @@ import os
 from dataclasses import dataclass
 from decimal import ROUND_HALF_EVEN, Decimal, InvalidOperation
 from pathlib import Path
-from typing import Any, Iterable, Iterator, Mapping, NamedTuple, Sequence
+from typing import Any, Iterable, Mapping, NamedTuple, Sequence
 
 import numpy as np
 
@@ -533,16 +533,6 @@ def _matrices(numbers: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return from_rt(quat_xyzw_to_matrix(q), p), valid
 
 
-def _bag_messages(rec: Any, topics: Sequence[str]) -> Iterator[tuple[str, str, int, Any]]:
-    """(topic, msgtype, receive ns, message) for ``topics`` of an open Recording, in bag order.
-
-    Goes through the Recording's own message iterator so that bag errors are wrapped the same
-    way as for sensor frames."""
-    connections = [c for t in topics for c in rec._topic(t).connections]  # noqa: SLF001
-    for conn, recv_ns, msg in rec._messages(connections):  # noqa: SLF001
-        yield conn.topic, conn.msgtype, recv_ns, msg
-
-
 class _Samples:
     """Pose samples of one body/edge, gathered from messages in any order as raw numbers and
     converted in one batch."""
@@ -613,7 +603,7 @@ def _read_tf_edges(rec: Any, topics: Sequence[str], static_topics: Iterable[str]
                    source: str) -> _TfEdges:
     static_set = set(static_topics)
     edges = _TfEdges({}, {}, {})
-    for topic, _, recv_ns, msg in _bag_messages(rec, topics):
+    for topic, _, recv_ns, msg in rec.messages(topics):
         for tr in msg.transforms:
             parent = _frame_name(tr.header.frame_id)
             child = _frame_name(tr.child_frame_id)
@@ -785,7 +775,7 @@ def read_pose_topics(path: str | os.PathLike[str],
             raise InputError(f"{source}: a topic is requested for two streams: {wanted}")
         samples = {t: _Samples(f"topic {t}") for t in by_topic}
         frames: dict[str, str] = {}
-        for topic, msgtype, recv_ns, msg in _bag_messages(rec, list(by_topic)):
+        for topic, msgtype, recv_ns, msg in rec.messages(list(by_topic)):
             frame = _frame_name(msg.header.frame_id)
             if frames.setdefault(topic, frame) != frame:
                 raise InputError(

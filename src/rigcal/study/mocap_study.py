@@ -82,9 +82,6 @@ __all__ = [
 ]
 
 TARGETS = ("diamond", "cylinder")
-#: checkerboard detections whose corners differ from the predicted grid (after removing the
-#: mean offset) by more than this many squares on average are dropped
-MAX_ORDER_RESIDUAL_SQUARES = 0.5
 SENSORS = (LIDAR, CAMERA)
 
 #: The paper's simulation tables: (target, sensor) -> N -> ((trans mu, sd) [mm],
@@ -388,18 +385,6 @@ def extract_observation(
             )
         if not m.ok:
             return m
-        if diamond:
-            # a corner grid that does not match the prediction's shape (OpenCV can return a
-            # shifted or transposed sub-grid that takes in the board's border T-junctions)
-            uv, _ = camera.project(transform_points(T_exp, target.camera_keypoints))
-            square_px = float(np.linalg.norm(uv[-1] - uv[0]) / math.hypot(pattern[0] - 1, pattern[1] - 1))
-            residual = float(m.quality.get("order_residual_px", 0.0))
-            if residual > MAX_ORDER_RESIDUAL_SQUARES * square_px:
-                return ExtractionFailure(
-                    name, capture.t_ns, "pattern_size_mismatch",
-                    f"the corner grid differs from the predicted one by {residual:.1f} px on average "
-                    f"(squares are {square_px:.1f} px): a shifted or transposed grid",
-                )
         kp = target.camera_keypoints[m.keypoint_index] if diamond else None
     if len(m.keypoints) == 0:
         return ExtractionFailure(name, capture.t_ns, "no_cluster" if kind == LIDAR else "no_contour",

@@ -1,90 +1,29 @@
-"""The contract every camera model honours. A new model adds its cases to ``CASES``.
+"""The contract every camera model honours, run on the cases of every model.
 
-Each case is a (id, factory) pair; every test below runs for every case: round trips,
-Jacobians against central finite differences, the validity mask (image border, behind the
-camera, non-finite input), immutability (``with_params``, read-only params, inputs untouched),
-shapes and errors, and - for models with OpenCV equivalents - agreement with cv2.projectPoints.
+The cases and the ``camera`` fixture that runs a test once per case live in ``conftest.py``
+in this directory; a new model adds its cases to ``CASES`` there. Every test below that takes
+``camera`` runs for every case: round trips, Jacobians against central finite differences,
+the validity mask (image border, behind the camera, non-finite input), immutability
+(``with_params``, read-only params, inputs untouched), shapes and errors, and - for models
+with an OpenCV plumb-bob equivalent - agreement with cv2.projectPoints (the test is skipped
+for the other models). The model modules test what is particular to each model.
 """
 
 from __future__ import annotations
 
 import pickle
 import warnings
-from typing import Callable
 
 import numpy as np
 import pytest
 
 from rigcal.errors import InputError
-from rigcal.sensors.camera import (
-    CAMERA_MODELS,
-    CameraModel,
-    DoubleSphereCamera,
-    KannalaBrandtCamera,
-    PinholeCamera,
-    RadtanCamera,
-    make_camera,
-)
-
-PRIUS = dict(width=1936, height=1216, fx=1419.435287, fy=1442.298159, cx=948.748187, cy=621.179140)
-PRIUS_DIST = dict(k1=-0.175243, k2=0.158967, p1=0.003024, p2=-0.002257, k3=-0.062404)
-
-CASES: list[tuple[str, Callable[[], CameraModel]]] = [
-    ("pinhole-prius", lambda: PinholeCamera.from_intrinsics(**PRIUS)),
-    (
-        "pinhole-vga-anisotropic",
-        lambda: PinholeCamera.from_intrinsics(640, 480, 500, 520, 330, 235),
-    ),
-    ("radtan-prius", lambda: RadtanCamera.from_intrinsics(**PRIUS, **PRIUS_DIST)),
-    (
-        "radtan-strong-barrel",
-        lambda: RadtanCamera.from_intrinsics(
-            640, 480, 380, 385, 322, 241, k1=-0.32, k2=0.11, p1=0.0012, p2=-0.0007, k3=-0.015
-        ),
-    ),
-    (
-        "radtan-pincushion-no-k3",
-        lambda: RadtanCamera.from_intrinsics(800, 600, 900, 900, 400, 300, k1=0.08, k2=0.01),
-    ),
-    # one case each of the fisheye models (their modules' tests run the suite on more cases)
-    (
-        "kb-wide",
-        lambda: KannalaBrandtCamera.from_intrinsics(
-            1280, 960, 600, 602, 640.5, 480.2, k1=-0.02, k2=0.01, k3=-0.003, k4=0.0005
-        ),
-    ),
-    (
-        "ds-near-pinhole",
-        lambda: DoubleSphereCamera.from_intrinsics(640, 480, 500, 520, 330, 235, xi=0.02, alpha=0.05),
-    ),
-]
-
-
-@pytest.fixture(params=[c[1] for c in CASES], ids=[c[0] for c in CASES])
-def camera(request) -> CameraModel:
-    return request.param()
-
-
-def pixels_in_image(camera: CameraModel, n: int, seed: int, margin: float = 1.0) -> np.ndarray:
-    rng = np.random.default_rng(seed)
-    return np.column_stack(
-        [
-            rng.uniform(margin, camera.width - 1 - margin, n),
-            rng.uniform(margin, camera.height - 1 - margin, n),
-        ]
-    )
-
-
-def points_in_view(camera: CameraModel, n: int, seed: int) -> np.ndarray:
-    """Points in front of the camera that project into the image, at 0.5-30 m."""
-    rays = camera.unproject(pixels_in_image(camera, n, seed))
-    depth = np.random.default_rng(seed + 1).uniform(0.5, 30.0, n)
-    return rays * depth[:, None]
+from rigcal.sensors.camera import CAMERA_MODELS, CameraModel, make_camera
 
 
 # ---------------------------------------------------------------------------- registry
-def test_every_registered_model_has_a_contract_case():
-    covered = {factory().name for _, factory in CASES}
+def test_every_registered_model_has_a_contract_case(camera_cases):
+    covered = {factory().name for _, factory in camera_cases}
     assert covered == set(CAMERA_MODELS)
 
 
@@ -99,7 +38,7 @@ def test_make_camera_unknown_name():
 
 
 # ---------------------------------------------------------------------------- round trips
-def test_pixel_unproject_project_round_trip(camera):
+def test_pixel_unproject_project_round_trip(camera, pixels_in_image):
     uv = pixels_in_image(camera, 500, seed=1)
     rays = camera.unproject(uv)
     assert rays.shape == (500, 3)
@@ -120,7 +59,7 @@ def test_point_project_unproject_round_trip(camera):
     np.testing.assert_allclose(rays, expected, atol=1e-9)
 
 
-def test_rays_point_forward(camera):
+def test_rays_point_forward(camera, pixels_in_image):
     rays = camera.unproject(pixels_in_image(camera, 200, seed=3))
     assert np.all(rays[:, 2] > 0)
 
@@ -143,7 +82,7 @@ def _central_difference(f, x: np.ndarray, h: float) -> np.ndarray:
     return np.stack(cols, axis=-1)
 
 
-def test_project_jacobian_matches_finite_differences(camera):
+def test_project_jacobian_matches_finite_differences(camera, points_in_view):
     pts = points_in_view(camera, 40, seed=4)
     J = camera.project_jacobian(pts)
     assert J.shape == (40, 2, 3)
@@ -153,7 +92,7 @@ def test_project_jacobian_matches_finite_differences(camera):
         np.testing.assert_allclose(J[i], num, rtol=1e-5, atol=1e-4)
 
 
-def test_params_jacobian_matches_finite_differences(camera):
+def test_params_jacobian_matches_finite_differences(camera, points_in_view):
     pts = points_in_view(camera, 40, seed=5)
     J = camera.params_jacobian(pts)
     assert J.shape == (40, 2, camera.num_params)
@@ -253,7 +192,7 @@ def test_params_are_read_only(camera):
         camera.width = 3  # type: ignore[misc]
 
 
-def test_inputs_are_never_mutated(camera):
+def test_inputs_are_never_mutated(camera, points_in_view, pixels_in_image):
     pts = points_in_view(camera, 30, seed=6)
     pts[0] = [0.0, 0.0, -1.0]
     uv = pixels_in_image(camera, 30, seed=7)

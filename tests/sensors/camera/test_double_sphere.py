@@ -1,84 +1,29 @@
-"""Double sphere: the camera contract, the published equations, parameter and domain checks.
+"""Double sphere: the published equations, parameter checks and the projection's domain.
 
-The contract suite (``test_contract.py``) is run here on double sphere cases: its own ``CASES``
-must equal the package's ``CAMERA_MODELS``, which does not list this model yet, so its tests are
-re-collected in this module with a local ``camera`` fixture. The two registry tests tied to
-``make_camera`` are replaced by one for :func:`camera_from_params`.
+The double sphere cases are defined in ``conftest.py`` (``DS_CASES``). The contract suite in
+``test_contract.py`` runs on them along with the cases of the other models, so only what is
+particular to this model is tested here. The ``ds_camera`` fixture from ``conftest.py`` runs
+the case-based tests below once per double sphere case. OpenCV has no double sphere model, so
+the contract's cv2.projectPoints comparison is skipped for it.
 """
 
 from __future__ import annotations
 
-import importlib.util
 import math
-from pathlib import Path
-from types import ModuleType
-from typing import Callable
 
 import numpy as np
 import pytest
 
 from rigcal.errors import InputError
-from rigcal.sensors.camera.base import CameraModel
 from rigcal.sensors.camera.double_sphere import DoubleSphereCamera
 from rigcal.sensors.camera.pinhole import PinholeCamera
 from rigcal.sensors.camera.registry import camera_from_params
 
-CASES: list[tuple[str, Callable[[], CameraModel]]] = [
-    (
-        # the paper's TUM-VI-like fisheye (xi < 0, alpha > 0.5), cropped to keep the image
-        # corners in front of the camera (rigcal models image the front half-space only)
-        "ds-fisheye-cropped",
-        lambda: DoubleSphereCamera.from_intrinsics(360, 360, 158.28, 158.27, 179.5, 180.9, -0.17, 0.59),
-    ),
-    (
-        "ds-low-alpha-positive-xi",
-        lambda: DoubleSphereCamera.from_intrinsics(640, 480, 420, 415, 318, 243, xi=0.3, alpha=0.3),
-    ),
-    (
-        # nearly a pinhole (alpha = xi = 0 is one; see test_zero_xi_and_alpha_is_a_pinhole - the
-        # contract's finite differences need room on both sides of every parameter)
-        "ds-near-pinhole",
-        lambda: DoubleSphereCamera.from_intrinsics(640, 480, 500, 520, 330, 235, xi=0.02, alpha=0.05),
-    ),
-    (
-        # domain bounded by the paper's z > -w2 d1 at 85.4 deg; image circle 252 px
-        "ds-negative-xi-bounded",
-        lambda: DoubleSphereCamera.from_intrinsics(400, 300, 160, 161, 199.5, 149.7, xi=-0.5, alpha=0.7),
-    ),
-]
 
-_NOT_REUSED = {
-    "test_every_registered_model_has_a_contract_case",  # CAMERA_MODELS lacks this model
-    "test_make_camera_by_name",  # make_camera does not know it: see test_camera_from_params
-    "test_make_camera_unknown_name",  # model independent: runs in test_contract.py
-    "test_matches_opencv_project_points",  # OpenCV has no double sphere model
-}
-
-
-def _load_contract() -> ModuleType:
-    path = Path(__file__).with_name("test_contract.py")
-    spec = importlib.util.spec_from_file_location("_camera_contract_double_sphere", path)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-_contract = _load_contract()
-for _name, _test in vars(_contract).items():
-    if _name.startswith("test_") and callable(_test) and _name not in _NOT_REUSED:
-        globals()[_name] = _test
-
-
-@pytest.fixture(params=[c[1] for c in CASES], ids=[c[0] for c in CASES])
-def camera(request) -> CameraModel:
-    return request.param()
-
-
-def test_camera_from_params(camera):
+def test_camera_from_params(ds_camera):
     for name in ("double_sphere", "ds", "DS", "DOUBLESPHERE"):
-        again = camera_from_params(name, camera.width, camera.height, camera.params)
-        assert again == camera and type(again) is DoubleSphereCamera
+        again = camera_from_params(name, ds_camera.width, ds_camera.height, ds_camera.params)
+        assert again == ds_camera and type(again) is DoubleSphereCamera
 
 
 # ---------------------------------------------------------------------------- the equations
@@ -91,21 +36,21 @@ def _paper_projection(p: np.ndarray, fx, fy, cx, cy, xi, alpha) -> np.ndarray:
     return np.array([fx * x / den + cx, fy * y / den + cy])
 
 
-def test_matches_the_published_projection(camera):
-    pts = _contract.points_in_view(camera, 50, seed=31)
-    uv, valid = camera.project(pts)
+def test_matches_the_published_projection(ds_camera, points_in_view):
+    pts = points_in_view(ds_camera, 50, seed=31)
+    uv, valid = ds_camera.project(pts)
     assert valid.all()
-    expected = np.array([_paper_projection(p, *camera.params) for p in pts])
+    expected = np.array([_paper_projection(p, *ds_camera.params) for p in pts])
     np.testing.assert_allclose(uv, expected, atol=1e-9)
 
 
-def test_zero_xi_and_alpha_is_a_pinhole():
+def test_zero_xi_and_alpha_is_a_pinhole(pixels_in_image):
     ds = DoubleSphereCamera.from_intrinsics(640, 480, 500, 520, 330, 235, xi=0.0, alpha=0.0)
     pinhole = PinholeCamera.from_intrinsics(640, 480, 500, 520, 330, 235)
     pts = np.random.default_rng(32).uniform([-1, -1, 0.5], [1, 1, 5], size=(100, 3))
     np.testing.assert_allclose(ds.project(pts)[0], pinhole.project(pts)[0], atol=1e-9)
     np.testing.assert_allclose(ds.project_jacobian(pts), pinhole.project_jacobian(pts), atol=1e-9)
-    uv = _contract.pixels_in_image(ds, 50, seed=33)
+    uv = pixels_in_image(ds, 50, seed=33)
     np.testing.assert_allclose(ds.unproject(uv), pinhole.unproject(uv), atol=1e-12)
 
 
@@ -124,10 +69,10 @@ def test_alpha_outside_zero_one_raises(alpha):
 
 
 @pytest.mark.parametrize("alpha", [0.0, 0.5, 1.0])
-def test_alpha_bounds_are_accepted(alpha):
+def test_alpha_bounds_are_accepted(alpha, pixels_in_image):
     # image radius 0.67 in normalised units: inside alpha = 1's disc r < 1
     cam = DoubleSphereCamera.from_intrinsics(640, 480, 600, 600, 320, 240, xi=-0.1, alpha=alpha)
-    uv = _contract.pixels_in_image(cam, 50, seed=34)
+    uv = pixels_in_image(cam, 50, seed=34)
     back, valid = cam.project(cam.unproject(uv))
     assert valid.all()
     np.testing.assert_allclose(back, uv, atol=1e-6)

@@ -1,25 +1,22 @@
-"""Kannala-Brandt: the camera contract, agreement with cv2.fisheye, the fold-back limit.
+"""Kannala-Brandt: agreement with cv2.fisheye, OpenCV interop, the fold-back limit.
 
-The contract suite (``test_contract.py``) is run here on Kannala-Brandt cases: its own ``CASES``
-must equal the package's ``CAMERA_MODELS``, which does not list this model yet, so its tests are
-re-collected in this module with a local ``camera`` fixture. The two registry tests tied to
-``make_camera`` are replaced by one for :func:`camera_from_params`.
+The Kannala-Brandt cases are defined in ``conftest.py`` (``KB_CASES``). The contract suite in
+``test_contract.py`` runs on them along with the cases of the other models, so only what is
+particular to this model is tested here. The ``kb_camera`` fixture from ``conftest.py`` runs
+the case-based tests below once per Kannala-Brandt case. The contract's cv2.projectPoints
+comparison is skipped for this model, which has no plumb-bob distortion coefficients; the
+cv2.fisheye tests below do that job instead.
 """
 
 from __future__ import annotations
 
-import importlib.util
 import math
-from pathlib import Path
-from types import ModuleType
-from typing import Callable
 
 import cv2
 import numpy as np
 import pytest
 
 from rigcal.errors import InputError
-from rigcal.sensors.camera.base import CameraModel
 from rigcal.sensors.camera.kannala_brandt import (
     KannalaBrandtCamera,
     monotonic_angle,
@@ -27,73 +24,24 @@ from rigcal.sensors.camera.kannala_brandt import (
 )
 from rigcal.sensors.camera.registry import camera_from_params
 
-# TUM-VI's published equidistant calibration of cam0, cropped to 400 x 400 so that the image
-# corners stay in front of the camera (rigcal models image the front half-space only).
-TUMVI_K = dict(fx=190.97847715128717, fy=190.9733070521226, cx=199.5, cy=201.3)
-TUMVI_D = dict(
-    k1=0.0034823894022493434,
-    k2=0.0007150348452162257,
-    k3=-0.0020532361418706202,
-    k4=0.00020293673591811182,
-)
 
-CASES: list[tuple[str, Callable[[], CameraModel]]] = [
-    (
-        "kb-wide",
-        lambda: KannalaBrandtCamera.from_intrinsics(
-            1280, 960, 600, 602, 640.5, 480.2, k1=-0.02, k2=0.01, k3=-0.003, k4=0.0005
-        ),
-    ),
-    ("kb-tumvi-cropped", lambda: KannalaBrandtCamera.from_intrinsics(400, 400, **TUMVI_K, **TUMVI_D)),
-    (
-        # theta_d folds back at 60 deg; the image stays inside the image circle
-        "kb-fold-at-60deg",
-        lambda: KannalaBrandtCamera.from_intrinsics(400, 300, 400, 405, 200.5, 149.5, k1=-0.3),
-    ),
-    ("kb-no-distortion", lambda: KannalaBrandtCamera.from_intrinsics(640, 480, 300, 310, 322, 241)),
-]
-
-_NOT_REUSED = {
-    "test_every_registered_model_has_a_contract_case",  # CAMERA_MODELS lacks this model
-    "test_make_camera_by_name",  # make_camera does not know it: see test_camera_from_params
-    "test_make_camera_unknown_name",  # model independent: runs in test_contract.py
-    "test_matches_opencv_project_points",  # plumb bob; see test_matches_cv2_fisheye_*
-}
-
-
-def _load_contract() -> ModuleType:
-    path = Path(__file__).with_name("test_contract.py")
-    spec = importlib.util.spec_from_file_location("_camera_contract_kannala_brandt", path)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-_contract = _load_contract()
-for _name, _test in vars(_contract).items():
-    if _name.startswith("test_") and callable(_test) and _name not in _NOT_REUSED:
-        globals()[_name] = _test
-
-
-@pytest.fixture(params=[c[1] for c in CASES], ids=[c[0] for c in CASES])
-def camera(request) -> CameraModel:
-    return request.param()
-
-
-def test_camera_from_params(camera):
+def test_camera_from_params(kb_camera):
     for name in ("kannala_brandt", "equidistant", "pinhole-equi", "KANNALABRANDT"):
-        again = camera_from_params(name, camera.width, camera.height, camera.params)
-        assert again == camera and type(again) is KannalaBrandtCamera
+        again = camera_from_params(name, kb_camera.width, kb_camera.height, kb_camera.params)
+        assert again == kb_camera and type(again) is KannalaBrandtCamera
 
 
 # ---------------------------------------------------------------------------- OpenCV fisheye
-def test_matches_cv2_fisheye_project_points(camera):
+def test_matches_cv2_fisheye_project_points(kb_camera):
     rng = np.random.default_rng(21)
     pts = rng.uniform([-3, -3, 0.05], [3, 3, 8], size=(2000, 3))
-    uv, valid = camera.project(pts)
+    uv, valid = kb_camera.project(pts)
     ref, _ = cv2.fisheye.projectPoints(
-        pts.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), camera.camera_matrix, camera.fisheye_coeffs
+        pts.reshape(-1, 1, 3),
+        np.zeros(3),
+        np.zeros(3),
+        kb_camera.camera_matrix,
+        kb_camera.fisheye_coeffs,
     )
     ref = ref.reshape(-1, 2)
     domain = np.isfinite(uv).all(axis=1)
@@ -101,25 +49,25 @@ def test_matches_cv2_fisheye_project_points(camera):
     np.testing.assert_allclose(uv[domain], ref[domain], atol=1e-6)
 
 
-def test_matches_cv2_fisheye_with_a_pose(camera):
+def test_matches_cv2_fisheye_with_a_pose(kb_camera):
     rng = np.random.default_rng(22)
     pts_board = rng.uniform(-0.4, 0.4, size=(300, 3))
     rvec, tvec = np.array([0.2, -0.1, 0.3]), np.array([0.1, 0.05, 1.5])
     ref, _ = cv2.fisheye.projectPoints(
-        pts_board.reshape(-1, 1, 3), rvec, tvec, camera.camera_matrix, camera.fisheye_coeffs
+        pts_board.reshape(-1, 1, 3), rvec, tvec, kb_camera.camera_matrix, kb_camera.fisheye_coeffs
     )
     R, _ = cv2.Rodrigues(rvec)
-    uv, valid = camera.project(pts_board @ R.T + tvec)
+    uv, valid = kb_camera.project(pts_board @ R.T + tvec)
     assert np.isfinite(uv).all() and valid.any()
     np.testing.assert_allclose(uv, ref.reshape(-1, 2), atol=1e-6)
 
 
-def test_unproject_matches_cv2_fisheye_undistort_points(camera):
-    uv = _contract.pixels_in_image(camera, 300, seed=23)
-    rays = camera.unproject(uv)
+def test_unproject_matches_cv2_fisheye_undistort_points(kb_camera, pixels_in_image):
+    uv = pixels_in_image(kb_camera, 300, seed=23)
+    rays = kb_camera.unproject(uv)
     criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-14)
     ref = cv2.fisheye.undistortPoints(
-        uv.reshape(-1, 1, 2), camera.camera_matrix, camera.fisheye_coeffs, criteria=criteria
+        uv.reshape(-1, 1, 2), kb_camera.camera_matrix, kb_camera.fisheye_coeffs, criteria=criteria
     ).reshape(-1, 2)
     np.testing.assert_allclose(rays[:, :2] / rays[:, 2:3], ref, rtol=1e-7, atol=1e-7)
 

@@ -10,8 +10,6 @@ from __future__ import annotations
 
 import argparse
 import platform
-import statistics
-import time
 from pathlib import Path
 
 import numpy as np
@@ -22,18 +20,9 @@ from rigcal.detect.lidar import detect_board_lidar
 from rigcal.detect.stereo import detect_board_stereo
 from rigcal.sensors.stereo import point_cloud_from_pair
 from rigcal.sim.raw import raw_rig_placements, render_stereo, scan, scene_for_placements
+from timing import median_ms
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "tudelft_prius" / "mono"
-
-
-def _median_ms(fn, runs):
-    fn()  # warm-up
-    times = []
-    for _ in range(runs):
-        t = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t)
-    return statistics.median(times) * 1000
 
 
 def main() -> int:
@@ -50,14 +39,14 @@ def main() -> int:
     lidar = sensors["lidar1"]
     for k, T in enumerate(placements):
         frame = scan(lidar.model, lidar.T_rig_sensor, scene.with_board(T), rng, 0, "lidar1")
-        ms = _median_ms(lambda: detect_board_lidar(frame, board), args.runs)
+        ms = median_ms(lambda: detect_board_lidar(frame, board), args.runs)
         print(f"{f'lidar, {len(frame)} points, board {k}':44} {ms:10.1f}")
     cam = sensors["camera1"]
     rig = cam.model.stereo_rig()
     pair = render_stereo(cam.model, cam.T_rig_sensor, scene.with_board(placements[0]), rng, 0, "camera1")
     cloud = point_cloud_from_pair(pair, rig)
-    print(f"{'stereo SGBM point cloud, 1936x1216':44} {_median_ms(lambda: point_cloud_from_pair(pair, rig), args.runs):10.1f}")
-    print(f"{'stereo detector on that cloud':44} {_median_ms(lambda: detect_board_stereo(cloud, board), args.runs):10.1f}")
+    print(f"{'stereo SGBM point cloud, 1936x1216':44} {median_ms(lambda: point_cloud_from_pair(pair, rig), args.runs):10.1f}")
+    print(f"{'stereo detector on that cloud':44} {median_ms(lambda: detect_board_stereo(cloud, board), args.runs):10.1f}")
     try:
         import cv2
 
@@ -72,7 +61,7 @@ def main() -> int:
         for name in ("example_image1.png", "example_image2.png"):
             img = cv2.imread(str(SHARED / name), cv2.IMREAD_GRAYSCALE)
             frame = ImageFrame("camera1", 0, img)
-            ms = _median_ms(lambda: detect_board_mono(frame, camera, board), args.runs)
+            ms = median_ms(lambda: detect_board_mono(frame, camera, board), args.runs)
             print(f"{f'mono, real {img.shape[1]}x{img.shape[0]} {name}':44} {ms:10.1f}")
     return 0
 

@@ -12,8 +12,6 @@ from __future__ import annotations
 
 import argparse
 import platform
-import statistics
-import time
 
 import numpy as np
 import scipy
@@ -23,6 +21,7 @@ from rigcal.problem.mocap import MocapOptions, MocapSensor, TargetObservation, c
 from rigcal.sim.mocap import LIDAR, paper_rig, paper_targets, simulate_mocap
 from rigcal.study.mocap_study import extract_observation, perturb_calibration
 from rigcal.targets.surface import TargetSurface
+from timing import median_ms
 
 
 def _observations(target, mode: str, n: int, T_init, seed: int) -> list[TargetObservation]:
@@ -36,16 +35,6 @@ def _observations(target, mode: str, n: int, T_init, seed: int) -> list[TargetOb
         if len(out) == n:
             break
     return out
-
-
-def _median_ms(fn, runs: int) -> float:
-    fn()  # warm-up
-    times = []
-    for _ in range(runs):
-        t = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t)
-    return statistics.median(times) * 1000
 
 
 def main() -> int:
@@ -77,7 +66,7 @@ def main() -> int:
         def run():
             return calibrate_mocap([sensor], obs, {name: T_init}, templates, options)
 
-        ms = _median_ms(run, args.runs)
+        ms = median_ms(run, args.runs)
         T = run().sensors[name].T_reference_sensor
         err = float(np.linalg.norm(T[:3, 3] - T_true[:3, 3])) * 1e3
         print(f"{label:<48} {sum(len(o.measured) for o in obs):>7} {ms:>11.1f} {err:>11.3g}")

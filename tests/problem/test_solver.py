@@ -165,6 +165,22 @@ def _function(kind: str, rng: np.random.Generator, n: int):
     return lambda TA, TB, P: observation_residuals(TA, TB, P, measured, sigma, model)
 
 
+def _central_differences(residuals, TA, TB, block: str, h: float = 1e-6) -> np.ndarray:
+    """d residuals / d xi of block A or B (right perturbation), by central differences:
+    (n, d, 6) for residuals(TA, TB) -> (n, d)."""
+    r0 = residuals(TA, TB)
+    fd = np.empty(r0.shape + (6,))
+    for j in range(6):
+        xi = np.zeros(6)
+        xi[j] = h
+        if block == "A":
+            rp, rm = residuals(TA @ se3_exp(xi), TB), residuals(TA @ se3_exp(-xi), TB)
+        else:
+            rp, rm = residuals(TA, TB @ se3_exp(xi)), residuals(TA, TB @ se3_exp(-xi))
+        fd[..., j] = (rp - rm) / (2 * h)
+    return fd
+
+
 @pytest.mark.parametrize("seed", [0, 1, 2])
 @pytest.mark.parametrize("block", ["A", "B"])
 @pytest.mark.parametrize("kind", ["point3d", "radar2d", "elevation", "surface"])
@@ -178,16 +194,7 @@ def test_jacobian_matches_central_differences_of_right_perturbation(kind, block,
     assert J.shape == r.shape + (6,)
     if kind == "elevation":
         assert np.all(r > 0)  # the contract is tested where the hinge is differentiable
-    h = 1e-6
-    fd = np.empty_like(J)
-    for j in range(6):
-        xi = np.zeros(6)
-        xi[j] = h
-        if block == "A":
-            rp, rm = f(TA @ se3_exp(xi), TB, P)[0], f(TA @ se3_exp(-xi), TB, P)[0]
-        else:
-            rp, rm = f(TA, TB @ se3_exp(xi), P)[0], f(TA, TB @ se3_exp(-xi), P)[0]
-        fd[..., j] = (rp - rm) / (2 * h)
+    fd = _central_differences(lambda A, B: f(A, B, P)[0], TA, TB, block)
     scale = float(np.max(np.abs(J)))
     assert scale > 1.0  # not a trivially zero Jacobian
     np.testing.assert_allclose(J, fd, rtol=1e-6, atol=1e-6 * scale)
@@ -260,14 +267,5 @@ def test_surface_jacobian_with_closest_points_found_at_every_evaluation(block):
     r, JA, JB = f(TA, TB)
     np.testing.assert_allclose(r[:, 0] * 0.01, surface.distance(y), atol=1e-12)  # outside: +distance
     J = JA if block == "A" else JB
-    h = 1e-6
-    fd = np.empty_like(J)
-    for j in range(6):
-        xi = np.zeros(6)
-        xi[j] = h
-        if block == "A":
-            rp, rm = f(TA @ se3_exp(xi), TB)[0], f(TA @ se3_exp(-xi), TB)[0]
-        else:
-            rp, rm = f(TA, TB @ se3_exp(xi))[0], f(TA, TB @ se3_exp(-xi))[0]
-        fd[..., j] = (rp - rm) / (2 * h)
+    fd = _central_differences(lambda A, B: f(A, B)[0], TA, TB, block)
     np.testing.assert_allclose(J, fd, rtol=1e-5, atol=1e-5 * float(np.max(np.abs(J))))

@@ -10,6 +10,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from rigcal.geometry import compose, from_rt, invert, se3_exp, se3_log, so3_exp, transform_points
+from rigcal.geometry.se3 import adjoint
 
 SETTINGS = settings(max_examples=50, deadline=None, derandomize=True)
 
@@ -101,3 +102,11 @@ def test_functions_do_not_mutate_inputs() -> None:
     se3_exp(xi), se3_log(T)
     for before, after in zip(copies, (xi, T, R, t, pts)):
         np.testing.assert_array_equal(before, after)
+
+
+@SETTINGS
+@given(T=transforms(), w=vec3, v=vec3)
+def test_adjoint_moves_a_twist_between_frames(T: np.ndarray, w: np.ndarray, v: np.ndarray) -> None:
+    xi = np.concatenate([w, v]) * 0.3
+    np.testing.assert_allclose(T @ se3_exp(xi) @ invert(T), se3_exp(adjoint(T) @ xi), atol=1e-9)
+    np.testing.assert_allclose(adjoint(invert(T)), np.linalg.inv(adjoint(T)), atol=1e-9)

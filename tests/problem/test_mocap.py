@@ -132,6 +132,13 @@ def test_non_overlapping_rig_with_noise_within_reported_uncertainty():
         assert t < 4 * t_std + 1e-4, (name, t, t_std)
         assert t < 0.005 and a < 0.1, (name, t, a)
     assert r.reprojection_px["robot-camera1"] == pytest.approx(0.2 * np.sqrt(2), rel=0.3)
+    # every sensor-to-sensor transform, with its propagated uncertainty
+    assert list(r.relative) == ["lidar1-camera1", "lidar1-camera2", "camera1-camera2"]
+    for key, rel in r.relative.items():
+        T_true = invert(TRUTH[rel.to]) @ TRUTH[rel.frm]
+        err = np.linalg.norm(rel.T_to_from[:3, 3] - T_true[:3, 3])
+        std_t = np.linalg.norm([rel.std[k] for k in ("x_m", "y_m", "z_m")])
+        assert 0 < std_t and err < 4 * std_t + 1e-4, (key, err, std_t)
 
 
 def test_cylinder_targets_need_correspondence_iterations_and_converge():

@@ -107,6 +107,26 @@ def test_noisy_rig_within_reported_uncertainty(noisy, rig_id, mode):
 
 
 @pytest.mark.parametrize("mode", MODES)
+def test_sensor_to_sensor_transforms_within_their_reported_uncertainty(noisy, mode):
+    sim, r = noisy("2lidar-2camera-2radar", mode)
+    names = sim.dataset.names
+    assert list(r.relative) == [f"{a}-{b}" for i, a in enumerate(names) for b in names[i + 1:]]
+    for key, rel in r.relative.items():
+        np.testing.assert_allclose(rel.T_to_from, r.T(rel.to, rel.frm), atol=1e-12)
+        kinds = {r.sensors[rel.to].kind, r.sensors[rel.frm].kind}
+        if SensorKind.RADAR in kinds or r.reference in (rel.to, rel.frm):
+            continue  # radars: z/roll/pitch are not determined; the reference: its own pose
+        if mode != "pse" and SensorKind.CAMERA in kinds:
+            continue  # FCPE/MCPE's equal-noise model makes a stereo camera's std optimistic
+        T_true = invert(_truth(sim, r.reference, rel.to)) @ _truth(sim, r.reference, rel.frm)
+        err = np.linalg.norm(rel.T_to_from[:3, 3] - T_true[:3, 3])
+        std_t = np.linalg.norm([rel.std[k] for k in ("x_m", "y_m", "z_m")])
+        assert 0 < std_t and err < SIGMAS * std_t + 0.005, (key, err, std_t)
+    d = r.to_dict()["relative"]["lidar2-camera1"]
+    assert (d["to"], d["from"]) == ("lidar2", "camera1") and len(d["covariance"]) == 6
+
+
+@pytest.mark.parametrize("mode", MODES)
 @pytest.mark.parametrize("rig_id", ["2lidar-camera-radar", "2lidar-2camera-2radar"])
 def test_2d_radar_plane_is_reported_weakly_observable(noisy, rig_id, mode):
     sim, r = noisy(rig_id, mode)

@@ -68,6 +68,19 @@ def se3_log(T: np.ndarray) -> np.ndarray:
     return np.concatenate([w, v], axis=-1)
 
 
+def adjoint(T: np.ndarray) -> np.ndarray:
+    """(6, 6) adjoint of ``T`` for twists ``xi = (omega, v)``: ``T exp(xi) T^-1 = exp(Ad_T xi)``,
+    ``Ad_T = [[R, 0], [hat(t) R, R]]``."""
+    T = np.asarray(T, dtype=float)
+    R, t = T[:3, :3], T[:3, 3]
+    tx = np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
+    out = np.zeros((6, 6))
+    out[:3, :3] = R
+    out[3:, :3] = tx @ R
+    out[3:, 3:] = R
+    return out
+
+
 def as_rigid(T: np.ndarray, what: str, atol: float = 1e-6) -> np.ndarray:
     """A read-only float copy of a rigid (4, 4) transform given by a user, or InputError naming
     ``what`` and saying what was expected (finite 4x4, proper rotation block, last row 0 0 0 1)."""

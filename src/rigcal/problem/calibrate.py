@@ -29,7 +29,7 @@ from rigcal.problem.outliers import OutlierRule, find_outliers
 from rigcal.problem.pairs import all_pairs, pair_data
 from rigcal.problem.result import CalibrationResult, SensorEstimate
 from rigcal.problem.solver import Problem, Solution, merge_independent, prepare, solve
-from rigcal.problem.uncertainty import geometry_warnings, pose_std, weak_directions
+from rigcal.problem.uncertainty import geometry_warnings, pose_std, relative_estimates, weak_directions
 
 log = logging.getLogger(__name__)
 
@@ -308,6 +308,7 @@ def calibrate(dataset: Dataset, options: CalibrationOptions = CalibrationOptions
         board_poses=fit.board_poses,
         cross_validation_rmse_m=cv,
         solve_time_s=time.perf_counter() - t0,
+        relative=relative_estimates(dataset.names, fit.poses, sol.joint_covariance),
     )
 
 

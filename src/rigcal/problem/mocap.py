@@ -47,7 +47,7 @@ from rigcal.geometry.so3 import so3_log
 from rigcal.problem.residuals import MODEL_CAMERA, MODEL_POINT, MODEL_SURFACE
 from rigcal.problem.result import CalibrationResult, SensorEstimate
 from rigcal.problem.solver import Observations, PoseBlock, PosePriors, Problem, solve
-from rigcal.problem.uncertainty import pose_std
+from rigcal.problem.uncertainty import pose_std, relative_estimates
 from rigcal.targets.surface import TargetSurface
 
 ROBOT = "robot"
@@ -439,4 +439,5 @@ def calibrate_mocap(
         noise_iterations=it,
         solve_time_s=time.perf_counter() - t0,
         reprojection_px=reproj,
+        relative=relative_estimates([s.name for s in sensors], poses, sol.joint_covariance),
     )

@@ -41,6 +41,28 @@ class SensorEstimate:
 
 
 @dataclass(frozen=True, eq=False)  # holds arrays: compare by identity
+class RelativeEstimate:
+    """One sensor's pose in another's frame, ``T_to_from`` (``frm`` seen from ``to``), with its
+    uncertainty: ``covariance`` (6, 6) over the right perturbation (omega, v) of ``T_to_from``,
+    propagated from both sensors' joint covariance (their correlation included); ``std`` as for
+    :class:`SensorEstimate`."""
+
+    to: str
+    frm: str
+    T_to_from: np.ndarray
+    covariance: np.ndarray
+    std: dict[str, float]
+
+    @property
+    def xyz_m(self) -> np.ndarray:
+        return self.T_to_from[:3, 3].copy()
+
+    @property
+    def rpy_deg(self) -> np.ndarray:
+        return np.degrees(rpy_from_matrix(self.T_to_from[:3, :3]))
+
+
+@dataclass(frozen=True, eq=False)  # holds arrays: compare by identity
 class CalibrationResult:
     """Everything a calibration run estimated and measured.
 
@@ -48,7 +70,9 @@ class CalibrationResult:
     squared distance over common detections as the original tool defines it (3D pairs over the
     circle centres, radar pairs in 2D after projection). ``per_board_m[pair][k]`` is the error
     of board k for that pair (RMS over its points). ``outliers[sensor]`` are the board indices
-    excluded for that sensor (found automatically or from an ignore file).
+    excluded for that sensor (found automatically or from an ignore file). ``relative["a-b"]``
+    is sensor b's pose in sensor a's frame (``T_a_b``) with its covariance, for every pair of
+    calibrated sensors (a before b in sensor order).
     """
 
     mode: str
@@ -70,6 +94,7 @@ class CalibrationResult:
     solve_time_s: float = 0.0
     #: camera pairs' reprojection RMS [px] (motion-capture calibration: "robot-camera1")
     reprojection_px: dict[str, float] = field(default_factory=dict)
+    relative: dict[str, RelativeEstimate] = field(default_factory=dict)
 
     def T(self, to: str, frm: str) -> np.ndarray:
         """``T_to_from`` between two calibrated sensors (or the reference)."""
@@ -100,6 +125,18 @@ class CalibrationResult:
                     "held": list(est.held),
                 }
                 for name, est in self.sensors.items()
+            },
+            "relative": {
+                key: {
+                    "to": rel.to,
+                    "from": rel.frm,
+                    "T_to_from": [[f(v) for v in row] for row in rel.T_to_from],
+                    "xyz_m": [f(v) for v in rel.xyz_m],
+                    "rpy_deg": [f(v) for v in rel.rpy_deg],
+                    "std": {k: f(rel.std[k]) for k in STD_KEYS},
+                    "covariance": [[f(v) for v in row] for row in rel.covariance],
+                }
+                for key, rel in self.relative.items()
             },
             "rmse_m": {k: f(v) for k, v in self.rmse_m.items()},
             "reprojection_px": {k: f(v) for k, v in self.reprojection_px.items()},

@@ -235,8 +235,13 @@ class Solution:
 
     def pose_covariance(self, name: str) -> np.ndarray:
         """(6, 6) covariance of a pose's local perturbation; zero rows/cols for held DOFs."""
-        cols = self.columns[name]
-        out = np.zeros((6, 6))
+        return self.joint_covariance([name])
+
+    def joint_covariance(self, names) -> np.ndarray:
+        """(6k, 6k) joint covariance of the local perturbations of poses ``names`` (in that
+        order), cross terms included; zero rows/cols for held DOFs."""
+        cols = np.concatenate([self.columns[n] for n in names])
+        out = np.zeros((len(cols), len(cols)))
         idx = np.flatnonzero(cols >= 0)
         if idx.size:
             c = cols[idx]
@@ -479,7 +484,6 @@ def _constrained_step(M, g, c, G, active_tol=1e-9, max_rounds=60):
     factorisation of M and the Schur complement of the active constraints).
 
     Returns (d, active mask, multipliers)."""
-    n = g.size
     if scipy.sparse.issparse(M):
         lu = scipy.sparse.linalg.splu(M.tocsc())
         solve_m = lu.solve

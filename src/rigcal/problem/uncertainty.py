@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from rigcal.dataset import Dataset, SensorKind
-from rigcal.geometry.se3 import se3_exp
+from rigcal.dataset import Dataset
+from rigcal.geometry.se3 import adjoint, invert, se3_exp
 from rigcal.geometry.so3 import rpy_from_matrix
-from rigcal.problem.pairs import all_pairs, pair_data, reflector_points
-from rigcal.problem.result import STD_KEYS
+from rigcal.problem.pairs import pair_data, reflector_points
+from rigcal.problem.result import STD_KEYS, RelativeEstimate
 
 #: std above which a direction is reported as weakly observable
 WEAK_TRANSLATION_M = 0.05
@@ -34,6 +34,31 @@ def pose_std(T: np.ndarray, covariance: np.ndarray) -> dict[str, float]:
     std = np.sqrt(np.maximum(np.diag(C), 0.0))
     std[3:] = np.degrees(std[3:])
     return dict(zip(STD_KEYS, (float(s) for s in std)))
+
+
+def relative_covariance(T_W_a: np.ndarray, T_W_b: np.ndarray, joint_covariance: np.ndarray) -> np.ndarray:
+    """(6, 6) covariance of ``T_a_b = T_W_a^-1 T_W_b`` (right perturbation) from the (12, 12)
+    joint covariance of the right perturbations of ``T_W_a`` and ``T_W_b`` (in that order).
+
+    First order: ``(T_W_a e^xa)^-1 T_W_b e^xb = T_a_b e^(xb - Ad(T_b_a) xa)``."""
+    T_a_b = invert(np.asarray(T_W_a, dtype=float)) @ np.asarray(T_W_b, dtype=float)
+    J = np.hstack([-adjoint(invert(T_a_b)), np.eye(6)])
+    C = J @ np.asarray(joint_covariance, dtype=float) @ J.T
+    return 0.5 * (C + C.T)
+
+
+def relative_estimates(names, poses, joint_covariance) -> dict:
+    """:class:`~rigcal.problem.result.RelativeEstimate` ``"a-b"`` (``T_a_b``) for every pair of
+    ``names`` (a before b): ``poses[name]`` is ``T_W_name``, ``joint_covariance([a, b])`` the
+    (12, 12) joint covariance of the two poses' right perturbations."""
+    out = {}
+    names = list(names)
+    for i, a in enumerate(names):
+        for b in names[i + 1:]:
+            T = invert(poses[a]) @ poses[b]
+            cov = relative_covariance(poses[a], poses[b], joint_covariance([a, b]))
+            out[f"{a}-{b}"] = RelativeEstimate(a, b, T, cov, pose_std(T, cov))
+    return out
 
 
 def weak_directions(std: dict[str, float]) -> list[str]:
@@ -86,5 +111,11 @@ def radar_fov_edge_boards(values: np.ndarray, tol_rad: float = 1e-4) -> int:
     return int(np.sum(values > -tol_rad))
 
 
-__all__ = ["geometry_warnings", "pose_std", "radar_fov_edge_boards", "weak_directions"]
-_ = SensorKind
+__all__ = [
+    "geometry_warnings",
+    "pose_std",
+    "radar_fov_edge_boards",
+    "relative_covariance",
+    "relative_estimates",
+    "weak_directions",
+]

@@ -11,7 +11,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from rigcal.dataset import Dataset, SensorDetections, SensorKind
+from rigcal.dataset import Dataset, SensorKind
 from rigcal.demo import RAW_TOPICS, demo_raw_rig, detection_errors, frames_by_topic, raw_rig_yaml
 from rigcal.detect.pipeline import run_detection
 from rigcal.geometry.se3 import invert

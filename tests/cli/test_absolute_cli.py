@@ -9,7 +9,6 @@ import yaml
 from rigcal.absolute.labels import format_labels_yaml
 from rigcal.cli.main import run
 from rigcal.dataset import SensorKind
-from rigcal.geometry.se3 import invert
 from rigcal.io.calibration_files import read_calibration_transforms
 from rigcal.io.manifest import write_dataset
 from rigcal.io.pointcloud import write_pcd

@@ -7,7 +7,7 @@ import pytest
 
 from rigcal.cli.main import run
 from rigcal.io.bag import write_recording
-from rigcal.recording import PointCloudFrame, RadarFrame
+from rigcal.recording import RadarFrame
 
 NS = 1_000_000_000
 RIG = """

@@ -12,7 +12,6 @@ import numpy as np
 import pytest
 
 from rigcal.dataset import SensorKind
-from rigcal.errors import ConvergenceError
 from rigcal.geometry.se3 import invert
 from rigcal.geometry.so3 import so3_log
 from rigcal.problem.calibrate import CalibrationOptions, calibrate

@@ -25,7 +25,7 @@ from rigcal.detect.placements import (
 from rigcal.detect.result import BoardDetection, DetectionFailure, DetectionResult
 from rigcal.errors import InputError
 from rigcal.io.rig_config import DetectionRig, SensorSetup
-from rigcal.recording import Frame, ImageFrame, PointCloudFrame, RadarFrame, StereoFrame
+from rigcal.recording import Frame, ImageFrame, StereoFrame
 
 
 class RecordingLike(Protocol):

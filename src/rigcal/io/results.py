@@ -17,15 +17,12 @@ import os
 import re
 from pathlib import Path
 from typing import Any
-from xml.sax.saxutils import quoteattr
 
 import numpy as np
 import yaml
 
-import rigcal
 from rigcal.errors import InputError
 from rigcal.geometry.se3 import invert
-from rigcal.geometry.so3 import rpy_from_matrix
 from rigcal.io.atomic import atomic_write_text
 from rigcal.io.manifest import check_sensor_name
 from rigcal.problem.result import CalibrationResult

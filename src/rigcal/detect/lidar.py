@@ -28,26 +28,25 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
 from rigcal.dataset import BoardGeometry
 from rigcal.detect.pointcloud import (
+    BoardDetectorConfig,
     HoleParams,
     StepFailed,
     board_frame,
     box_mask,
     check_axis,
     check_box,
-    check_positive,
-    check_seed,
     find_hole_square,
     remove_ground,
     rings_from_elevation,
     board_candidates,
 )
 from rigcal.detect.result import BoardDetection, DetectionFailure, DetectionResult
-from rigcal.errors import ConfigError
 from rigcal.geometry.fitting import from_plane_2d, intersect_rays_plane, to_plane_2d
 from rigcal.recording import PointCloudFrame
 
@@ -55,7 +54,7 @@ __all__ = ["LidarDetectorConfig", "detect_board_lidar"]
 
 
 @dataclass(frozen=True)
-class LidarDetectorConfig:
+class LidarDetectorConfig(BoardDetectorConfig):
     """Settings of :func:`detect_board_lidar` (defaults suit a 16-128 ring lidar, board 2-10 m).
 
     ``roi_min_xyz`` / ``roi_max_xyz``: optional box [m] in the sensor frame (both or neither);
@@ -74,59 +73,10 @@ class LidarDetectorConfig:
     ``seed`` seeds every RANSAC (detections are deterministic).
     """
 
-    roi_min_xyz: tuple[float, float, float] | None = None
-    roi_max_xyz: tuple[float, float, float] | None = None
-    min_range_m: float = 0.5
-    max_range_m: float = 15.0
-    up_axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
-    remove_ground: bool = True
-    ground_threshold_m: float = 0.1
-    ground_max_angle_deg: float = 30.0
-    ground_iterations: int = 100
-    cluster_cell_m: float = 0.2
-    min_board_points: int = 30
-    check_board_size: bool = True
-    allow_partial_board: bool = True
-    size_tolerance_m: float = 0.3
-    max_board_candidates: int = 3
-    plane_threshold_m: float = 0.05
-    plane_iterations: int = 200
-    jump_m: float = 0.15
-    ring_gap_deg: float = 0.12
-    min_radius_m: float = 0.06
-    max_radius_m: float = 0.10
-    circle_threshold_m: float = 0.03
-    min_edge_points: int = 8
-    refine_square: bool = True
-    square_tolerance_m: float = 0.03
-    vote_cell_m: float = 0.01
-    vote_angle_step_deg: float = 6.0
-    seed: int = 0
+    WHERE: ClassVar[str] = "lidar detector"
+    EXTRA_POSITIVE: ClassVar[tuple[str, ...]] = ("ring_gap_deg",)
 
-    def __post_init__(self) -> None:
-        where = "lidar detector"
-        check_box(self.roi_min_xyz, self.roi_max_xyz, where)
-        check_axis(self.up_axis, "up_axis", where)
-        check_seed(self.seed, where)
-        check_positive(
-            self,
-            ("min_range_m", "max_range_m", "ground_threshold_m", "ground_max_angle_deg",
-             "ground_iterations", "cluster_cell_m", "min_board_points", "size_tolerance_m",
-             "max_board_candidates", "plane_threshold_m", "plane_iterations", "jump_m",
-             "ring_gap_deg", "min_radius_m", "max_radius_m", "circle_threshold_m",
-             "min_edge_points", "square_tolerance_m", "vote_cell_m", "vote_angle_step_deg"),
-            where,
-        )
-        if self.max_range_m <= self.min_range_m:
-            raise ConfigError(
-                f"{where}: max_range_m ({self.max_range_m}) must exceed min_range_m "
-                f"({self.min_range_m})"
-            )
-        if self.max_radius_m < self.min_radius_m:
-            raise ConfigError(
-                f"{where}: max_radius_m ({self.max_radius_m}) must be >= min_radius_m "
-                f"({self.min_radius_m})"
-            )
+    ring_gap_deg: float = 0.12
 
 
 def _wrap(a: np.ndarray) -> np.ndarray:

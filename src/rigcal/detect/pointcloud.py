@@ -20,7 +20,8 @@ and a detail sentence; the detectors turn it into a
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from dataclasses import dataclass
+from typing import ClassVar, NamedTuple
 
 import numpy as np
 
@@ -38,6 +39,7 @@ from rigcal.geometry.fitting import (
 )
 
 __all__ = [
+    "BoardDetectorConfig",
     "BoardSegment",
     "HoleParams",
     "HoleSquare",
@@ -101,6 +103,76 @@ def check_axis(v, name: str, where: str) -> np.ndarray:
     if a.shape != (3,) or not np.all(np.isfinite(a)) or np.linalg.norm(a) < 1e-9:
         raise ConfigError(f"{where}.{name} must be a non-zero 3-vector, got {v!r}")
     return a / np.linalg.norm(a)
+
+
+@dataclass(frozen=True)
+class BoardDetectorConfig:
+    """Settings both point-cloud detectors share; :class:`rigcal.detect.lidar.LidarDetectorConfig`
+    and :class:`rigcal.detect.stereo.StereoDetectorConfig` give them their own defaults and add
+    their own fields (the field meanings are documented there).
+
+    Subclasses name themselves in errors with ``WHERE`` and list their extra positive fields in
+    ``EXTRA_POSITIVE``; ``_check_extra`` adds further checks."""
+
+    WHERE: ClassVar[str] = "board detector"
+    EXTRA_POSITIVE: ClassVar[tuple[str, ...]] = ()
+
+    roi_min_xyz: tuple[float, float, float] | None = None
+    roi_max_xyz: tuple[float, float, float] | None = None
+    min_range_m: float = 0.5
+    max_range_m: float = 15.0
+    up_axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    remove_ground: bool = True
+    ground_threshold_m: float = 0.1
+    ground_max_angle_deg: float = 30.0
+    ground_iterations: int = 100
+    cluster_cell_m: float = 0.2
+    min_board_points: int = 30
+    check_board_size: bool = True
+    allow_partial_board: bool = True
+    size_tolerance_m: float = 0.3
+    max_board_candidates: int = 3
+    plane_threshold_m: float = 0.05
+    plane_iterations: int = 200
+    jump_m: float = 0.15
+    min_radius_m: float = 0.06
+    max_radius_m: float = 0.10
+    circle_threshold_m: float = 0.03
+    min_edge_points: int = 8
+    refine_square: bool = True
+    square_tolerance_m: float = 0.03
+    vote_cell_m: float = 0.01
+    vote_angle_step_deg: float = 6.0
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        where = self.WHERE
+        check_box(self.roi_min_xyz, self.roi_max_xyz, where)
+        check_axis(self.up_axis, "up_axis", where)
+        check_seed(self.seed, where)
+        check_positive(
+            self,
+            ("min_range_m", "max_range_m", "ground_threshold_m", "ground_max_angle_deg",
+             "ground_iterations", "cluster_cell_m", "min_board_points", "size_tolerance_m",
+             "max_board_candidates", "plane_threshold_m", "plane_iterations", "jump_m",
+             "min_radius_m", "max_radius_m", "circle_threshold_m", "min_edge_points",
+             "square_tolerance_m", "vote_cell_m", "vote_angle_step_deg") + self.EXTRA_POSITIVE,
+            where,
+        )
+        if self.max_range_m <= self.min_range_m:
+            raise ConfigError(
+                f"{where}: max_range_m ({self.max_range_m}) must exceed min_range_m "
+                f"({self.min_range_m})"
+            )
+        if self.max_radius_m < self.min_radius_m:
+            raise ConfigError(
+                f"{where}: max_radius_m ({self.max_radius_m}) must be >= min_radius_m "
+                f"({self.min_radius_m})"
+            )
+        self._check_extra()
+
+    def _check_extra(self) -> None:
+        """Checks of a subclass's own fields (none here)."""
 
 
 # ----------------------------------------------------------------------------- segmentation

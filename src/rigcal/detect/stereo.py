@@ -31,11 +31,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
 from rigcal.dataset import BoardGeometry
 from rigcal.detect.pointcloud import (
+    BoardDetectorConfig,
     BoardSegment,
     HoleParams,
     StepFailed,
@@ -45,7 +47,6 @@ from rigcal.detect.pointcloud import (
     check_axis,
     check_box,
     check_positive,
-    check_seed,
     find_hole_square,
     rays_to_plane,
     remove_ground,
@@ -65,7 +66,7 @@ __all__ = ["StereoDetectorConfig", "detect_board_stereo"]
 
 
 @dataclass(frozen=True)
-class StereoDetectorConfig:
+class StereoDetectorConfig(BoardDetectorConfig):
     """Settings of :func:`detect_board_stereo` (defaults: 1-2 MP stereo, board at 2-8 m).
 
     Fields as in :class:`rigcal.detect.lidar.LidarDetectorConfig`, plus: ``max_segment_points``
@@ -76,67 +77,30 @@ class StereoDetectorConfig:
     cell for unorganised clouds; None: from the point density).
     """
 
-    roi_min_xyz: tuple[float, float, float] | None = None
-    roi_max_xyz: tuple[float, float, float] | None = None
-    min_range_m: float = 0.5
+    WHERE: ClassVar[str] = "stereo detector"
+    EXTRA_POSITIVE: ClassVar[tuple[str, ...]] = (
+        "max_segment_points", "min_hole_area_fraction", "max_hole_area_fraction")
+
     max_range_m: float = 12.0
     up_axis: tuple[float, float, float] = (0.0, -1.0, 0.0)
-    remove_ground: bool = True
     ground_threshold_m: float = 0.15
-    ground_max_angle_deg: float = 30.0
-    ground_iterations: int = 100
-    max_segment_points: int = 60000
-    cluster_cell_m: float = 0.2
     min_board_points: int = 200
-    check_board_size: bool = True
-    allow_partial_board: bool = True
-    size_tolerance_m: float = 0.3
-    max_board_candidates: int = 3
     plane_threshold_m: float = 0.1
     plane_iterations: int = 250
     jump_m: float = 0.25
+    min_radius_m: float = 0.045  # SGBM block matching fattens the plate: holes look smaller
+    circle_threshold_m: float = 0.02
+    min_edge_points: int = 12
+    max_segment_points: int = 60000
     min_hole_area_fraction: float = 0.2
     max_hole_area_fraction: float = 3.0
     grid_cell_m: float | None = None
-    min_radius_m: float = 0.045  # SGBM block matching fattens the plate: holes look smaller
-    max_radius_m: float = 0.10
-    circle_threshold_m: float = 0.02
-    min_edge_points: int = 12
-    refine_square: bool = True
-    square_tolerance_m: float = 0.03
-    vote_cell_m: float = 0.01
-    vote_angle_step_deg: float = 6.0
-    seed: int = 0
 
-    def __post_init__(self) -> None:
-        where = "stereo detector"
-        check_box(self.roi_min_xyz, self.roi_max_xyz, where)
-        check_axis(self.up_axis, "up_axis", where)
-        check_seed(self.seed, where)
-        check_positive(
-            self,
-            ("min_range_m", "max_range_m", "ground_threshold_m", "ground_max_angle_deg",
-             "ground_iterations", "max_segment_points", "cluster_cell_m", "min_board_points",
-             "size_tolerance_m", "max_board_candidates", "plane_threshold_m", "plane_iterations",
-             "jump_m", "min_hole_area_fraction", "max_hole_area_fraction", "min_radius_m",
-             "max_radius_m", "circle_threshold_m", "min_edge_points", "square_tolerance_m",
-             "vote_cell_m", "vote_angle_step_deg"),
-            where,
-        )
+    def _check_extra(self) -> None:
         if self.grid_cell_m is not None:
-            check_positive(self, ("grid_cell_m",), where)
-        if self.max_range_m <= self.min_range_m:
-            raise ConfigError(
-                f"{where}: max_range_m ({self.max_range_m}) must exceed min_range_m "
-                f"({self.min_range_m})"
-            )
-        if self.max_radius_m < self.min_radius_m:
-            raise ConfigError(
-                f"{where}: max_radius_m ({self.max_radius_m}) must be >= min_radius_m "
-                f"({self.min_radius_m})"
-            )
+            check_positive(self, ("grid_cell_m",), self.WHERE)
         if self.max_hole_area_fraction <= self.min_hole_area_fraction:
-            raise ConfigError(f"{where}: max_hole_area_fraction must exceed min_hole_area_fraction")
+            raise ConfigError(f"{self.WHERE}: max_hole_area_fraction must exceed min_hole_area_fraction")
 
 
 # ----------------------------------------------------------------------------- helpers

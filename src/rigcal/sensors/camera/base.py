@@ -9,7 +9,7 @@ returns a new model. Projection never raises for points it cannot image: it retu
 mask instead (behind the camera, outside the model's domain, outside the image).
 
 A model subclass is a frozen dataclass that sets the class attributes ``name`` and
-``param_names`` and implements the private hooks ``_project``, ``_project_jacobian``,
+``param_names`` (every model's parameters start with ``fx, fy, cx, cy``) and implements the private hooks ``_project``, ``_project_jacobian``,
 ``_params_jacobian`` and ``_unproject`` on already-validated float arrays; it may override
 ``_in_domain`` (where the projection is defined and one-to-one, by default ``z > eps``).
 """
@@ -47,6 +47,19 @@ def as_pixels(uv: np.ndarray, what: str = "uv") -> np.ndarray:
     if p.ndim != 2 or p.shape[1] != 2:
         raise InputError(f"{what}: expected an (N, 2) array of pixels, got shape {p.shape}")
     return p
+
+
+def intrinsics_from_camera_matrix(camera_matrix: np.ndarray, model: str) -> tuple[float, float, float, float]:
+    """``(fx, fy, cx, cy)`` of an OpenCV camera matrix K (3, 3) without skew; InputError naming
+    ``model`` otherwise."""
+    K = np.asarray(camera_matrix, dtype=float)
+    if K.shape != (3, 3):
+        raise InputError(f"{model} camera: camera matrix must be 3x3, got {K.shape}")
+    if abs(K[0, 1]) > 1e-9 * max(abs(K[0, 0]), 1.0) or K[1, 0] != 0 or not np.allclose(K[2], [0.0, 0.0, 1.0]):
+        raise InputError(
+            f"{model} camera: camera matrix must be [[fx, 0, cx], [0, fy, cy], [0, 0, 1]], got {K.tolist()}"
+        )
+    return float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2])
 
 
 @dataclass(frozen=True, eq=False, repr=False)
@@ -87,7 +100,17 @@ class CameraModel(ABC):
         self._check_params()
 
     def _check_params(self) -> None:
-        """Model-specific validation of ``self.params`` (raise InputError)."""
+        """Validation of ``self.params`` (raise InputError): focal lengths > 0 here; models
+        with more constraints extend it."""
+        fx, fy = self.params[0], self.params[1]
+        if fx <= 0 or fy <= 0:
+            raise InputError(f"{self.name} camera: fx and fy must be > 0 [px], got {fx}, {fy}")
+
+    @property
+    def camera_matrix(self) -> np.ndarray:
+        """(3, 3) the linear part ``K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]`` (OpenCV's K)."""
+        fx, fy, cx, cy = self.params[:4]
+        return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
 
     def with_params(self, params: np.ndarray) -> "CameraModel":
         """A new model of the same kind and size with ``params`` (P,); ``self`` is unchanged."""

@@ -62,9 +62,8 @@ class DoubleSphereCamera(CameraModel):
         return cls(width, height, np.array([fx, fy, cx, cy, xi, alpha], dtype=float))
 
     def _check_params(self) -> None:
-        fx, fy, _, _, xi, alpha = self.params
-        if fx <= 0 or fy <= 0:
-            raise InputError(f"{self.name} camera: fx and fy must be > 0 [px], got {fx}, {fy}")
+        super()._check_params()
+        xi, alpha = self.params[4], self.params[5]
         if not 0.0 <= alpha <= 1.0:
             raise InputError(f"{self.name} camera: alpha must be in [0, 1], got {alpha}")
         if not xi > -1.0:

@@ -22,7 +22,7 @@ from functools import cached_property
 import numpy as np
 
 from rigcal.errors import InputError
-from rigcal.sensors.camera.base import MIN_DEPTH_M, CameraModel
+from rigcal.sensors.camera.base import MIN_DEPTH_M, CameraModel, intrinsics_from_camera_matrix
 
 _UNPROJECT_ITERATIONS = 100
 _UNPROJECT_TOL = 1e-14  # |theta_d(theta) - rho| [rad] at which Newton stops
@@ -81,36 +81,16 @@ class KannalaBrandtCamera(CameraModel):
         cls, width: int, height: int, camera_matrix: np.ndarray, fisheye_coeffs: np.ndarray
     ) -> "KannalaBrandtCamera":
         """From OpenCV fisheye's K (3, 3) and ``D = (k1, k2, k3, k4)``; K must have no skew."""
-        K = np.asarray(camera_matrix, dtype=float)
         d = np.asarray(fisheye_coeffs, dtype=float).reshape(-1)
-        if K.shape != (3, 3):
-            raise InputError(f"kannala_brandt camera: camera matrix must be 3x3, got {K.shape}")
         if d.size != 4:
             raise InputError(
                 f"kannala_brandt camera: expected 4 fisheye coefficients (k1, k2, k3, k4), "
                 f"got {d.size}"
             )
-        if abs(K[0, 1]) > 1e-9 * max(abs(K[0, 0]), 1.0) or K[1, 0] != 0 or not np.allclose(
-            K[2], [0.0, 0.0, 1.0]
-        ):
-            raise InputError(
-                f"kannala_brandt camera: camera matrix must be [[fx, 0, cx], [0, fy, cy], "
-                f"[0, 0, 1]], got {K.tolist()}"
-            )
-        return cls.from_intrinsics(width, height, K[0, 0], K[1, 1], K[0, 2], K[1, 2], *d)
-
-    def _check_params(self) -> None:
-        fx, fy = self.params[0], self.params[1]
-        if fx <= 0 or fy <= 0:
-            raise InputError(f"{self.name} camera: fx and fy must be > 0 [px], got {fx}, {fy}")
+        fx, fy, cx, cy = intrinsics_from_camera_matrix(camera_matrix, "kannala_brandt")
+        return cls.from_intrinsics(width, height, fx, fy, cx, cy, *d)
 
     # ------------------------------------------------------------------ OpenCV interop
-    @property
-    def camera_matrix(self) -> np.ndarray:
-        """(3, 3) OpenCV camera matrix K."""
-        fx, fy, cx, cy = self.params[:4]
-        return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
-
     @property
     def fisheye_coeffs(self) -> np.ndarray:
         """(4,) ``D = (k1, k2, k3, k4)`` for ``cv2.fisheye`` (not plumb-bob ``dist_coeffs``)."""

@@ -9,7 +9,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rigcal.errors import InputError
 from rigcal.sensors.camera.base import CameraModel
 
 
@@ -36,17 +35,6 @@ class PinholeCamera(CameraModel):
         cls, width: int, height: int, fx: float, fy: float, cx: float, cy: float
     ) -> "PinholeCamera":
         return cls(width, height, np.array([fx, fy, cx, cy], dtype=float))
-
-    def _check_params(self) -> None:
-        fx, fy = self.params[0], self.params[1]
-        if fx <= 0 or fy <= 0:
-            raise InputError(f"{self.name} camera: fx and fy must be > 0 [px], got {fx}, {fy}")
-
-    @property
-    def camera_matrix(self) -> np.ndarray:
-        """(3, 3) OpenCV camera matrix K."""
-        fx, fy, cx, cy = self.params[:4]
-        return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
 
     @property
     def dist_coeffs(self) -> np.ndarray:

@@ -23,7 +23,7 @@ from functools import cached_property
 import numpy as np
 
 from rigcal.errors import InputError
-from rigcal.sensors.camera.base import CameraModel, as_pixels
+from rigcal.sensors.camera.base import CameraModel, as_pixels, intrinsics_from_camera_matrix
 from rigcal.sensors.camera.pinhole import normalised_jacobian
 
 _UNDISTORT_ITERATIONS = 30
@@ -95,39 +95,17 @@ class RadtanCamera(CameraModel):
         cls, width: int, height: int, camera_matrix: np.ndarray, dist_coeffs: np.ndarray
     ) -> "RadtanCamera":
         """From OpenCV's K (3, 3) and ``(k1, k2, p1, p2[, k3])``; K must have no skew."""
-        K = np.asarray(camera_matrix, dtype=float)
         d = np.asarray(dist_coeffs, dtype=float).reshape(-1)
-        if K.shape != (3, 3):
-            raise InputError(f"radtan camera: camera matrix must be 3x3, got {K.shape}")
         if d.size not in (4, 5):
             raise InputError(
                 f"radtan camera: expected 4 or 5 distortion coefficients (k1, k2, p1, p2[, k3]), "
                 f"got {d.size}"
             )
-        if abs(K[0, 1]) > 1e-9 * max(abs(K[0, 0]), 1.0) or K[1, 0] != 0 or not np.allclose(
-            K[2], [0.0, 0.0, 1.0]
-        ):
-            raise InputError(
-                f"radtan camera: camera matrix must be [[fx, 0, cx], [0, fy, cy], [0, 0, 1]], "
-                f"got {K.tolist()}"
-            )
+        fx, fy, cx, cy = intrinsics_from_camera_matrix(camera_matrix, "radtan")
         k3 = d[4] if d.size == 5 else 0.0
-        return cls.from_intrinsics(
-            width, height, K[0, 0], K[1, 1], K[0, 2], K[1, 2], d[0], d[1], d[2], d[3], k3
-        )
-
-    def _check_params(self) -> None:
-        fx, fy = self.params[0], self.params[1]
-        if fx <= 0 or fy <= 0:
-            raise InputError(f"{self.name} camera: fx and fy must be > 0 [px], got {fx}, {fy}")
+        return cls.from_intrinsics(width, height, fx, fy, cx, cy, d[0], d[1], d[2], d[3], k3)
 
     # ------------------------------------------------------------------ OpenCV interop
-    @property
-    def camera_matrix(self) -> np.ndarray:
-        """(3, 3) OpenCV camera matrix K."""
-        fx, fy, cx, cy = self.params[:4]
-        return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
-
     @property
     def dist_coeffs(self) -> np.ndarray:
         """(5,) OpenCV distortion coefficients ``(k1, k2, p1, p2, k3)``."""

@@ -13,6 +13,7 @@ import pytest
 from rigcal.errors import GeometryError, InputError
 from rigcal.geometry.se3 import from_rt, invert, transform_points
 from rigcal.geometry.so3 import so3_log
+from rigcal.sensors.camera.kannala_brandt import KannalaBrandtCamera
 from rigcal.sensors.camera.radtan import RadtanCamera
 from rigcal.sim.mocap import (
     CYLINDER_HEIGHT_M,
@@ -21,11 +22,14 @@ from rigcal.sim.mocap import (
     Box,
     MocapRig,
     Placement,
+    SensorView,
     cast_lidar,
     paper_rig,
     paper_targets,
     render_image,
+    sample_pose_in_view,
     sample_target_pose,
+    sees_part,
     simulate_mocap,
     target_centre,
 )
@@ -182,13 +186,63 @@ def test_rendered_cylinder_is_a_green_silhouette(rig, targets):
     assert 0.3 * approx < green.sum() < 1.5 * approx
 
 
-def test_render_refuses_distorted_cameras_and_bad_noise(rig, targets):
+DISTORTED = {
+    "radtan": RadtanCamera.from_intrinsics(1280, 960, 1050.0, 1050.0, 641.0, 478.5, -0.2, 0.06, 0.0005, -0.0003),
+    "kannala_brandt": KannalaBrandtCamera(1280, 960, np.array([600.0, 600.0, 639.5, 479.5, 0.05, -0.01, 0.002, -0.0005])),
+}
+
+
+@pytest.mark.parametrize("model", sorted(DISTORTED))
+def test_distorted_cameras_render_corners_where_they_project_them(targets, model):
+    cam = DISTORTED[model]
+    d = targets.diamond
+    rng = np.random.default_rng(2)
+    errors = []
+    for _ in range(3):
+        T_ct = sample_pose_in_view(SensorView(cam, np.eye(4)), d, rng, Placement(distance_range_m=(1.6, 3.0)))
+        img = render_image(cam, T_ct, d, rng).image
+        assert img.shape == (960, 1280)
+        ok, corners = cv2.findChessboardCornersSB(img, (7, 6), flags=cv2.CALIB_CB_ACCURACY)
+        assert ok
+        uv, valid = cam.project(transform_points(T_ct, d.camera_keypoints))
+        assert valid.all()
+        err = np.min(np.linalg.norm(corners.reshape(-1, 2)[:, None] - uv[None], axis=2), axis=1)
+        errors.append(float(np.sqrt(np.mean(err**2))))
+    # measured: radtan 0.031-0.082 px, Kannala-Brandt 0.022-0.117 px RMS
+    assert max(errors) < 0.15, errors
+
+
+def test_a_distorted_render_of_an_undistorted_lens_is_the_pinhole_render(rig, targets):
+    # the ray-cast renderer (any model) and the homography renderer (pinhole) agree
     T_ct = _camera_view(rig, targets.diamond)
-    radtan = RadtanCamera(2048, 1536, np.r_[F1_INTRINSICS, 0.01, 0, 0, 0, 0])
-    with pytest.raises(InputError, match="undistorted PinholeCamera"):
-        render_image(radtan, T_ct, targets.diamond, np.random.default_rng(0))
+    flat = RadtanCamera(2048, 1536, np.r_[F1_INTRINSICS, 0, 0, 0, 0, 0])
+    a = render_image(rig.camera, T_ct, targets.diamond, np.random.default_rng(0), noise_sigma=0.0).image
+    b = render_image(flat, T_ct, targets.diamond, np.random.default_rng(0), noise_sigma=0.0).image
+    assert np.abs(a.astype(int) - b.astype(int)).max() <= 1  # measured: identical images
+    c = render_image(flat, _camera_view(rig, targets.cylinder), targets.cylinder, np.random.default_rng(0), noise_sigma=0.0).image
+    e = render_image(rig.camera, _camera_view(rig, targets.cylinder), targets.cylinder, np.random.default_rng(0), noise_sigma=0.0).image
+    assert np.abs(c.astype(int) - e.astype(int)).max() <= 1  # measured: identical images
+
+
+def test_render_refuses_non_cameras_and_bad_noise(rig, targets):
+    T_ct = _camera_view(rig, targets.diamond)
+    with pytest.raises(InputError, match="needs a camera model"):
+        render_image(rig.lidar, T_ct, targets.diamond, np.random.default_rng(0))
     with pytest.raises(InputError, match="noise_sigma"):
         render_image(rig.camera, T_ct, targets.diamond, np.random.default_rng(0), noise_sigma=-1.0)
+
+
+def test_a_lidar_azimuth_window_keeps_only_its_returns(rig, targets):
+    T_mt = sample_target_pose(rig, "lidar", targets.diamond, np.eye(4), np.random.default_rng(5))
+    T_ml = rig.T_robot_lidar
+    full = cast_lidar(rig.lidar, T_ml, targets.diamond, T_mt, (), np.random.default_rng(1))
+    half = cast_lidar(rig.lidar, T_ml, targets.diamond, T_mt, (), np.random.default_rng(1), azimuth_fov_deg=(-90, 90))
+    az = np.degrees(np.arctan2(half.points_xyz[:, 1], half.points_xyz[:, 0]))
+    assert np.all(np.abs(az) <= 90) and 0.3 * len(full.points_xyz) < len(half.points_xyz) < 0.7 * len(full.points_xyz)
+    keep = np.abs(np.degrees(np.arctan2(full.points_xyz[:, 1], full.points_xyz[:, 0]))) <= 90
+    np.testing.assert_array_equal(half.points_xyz, full.points_xyz[keep])  # exact ranges: same points
+    with pytest.raises(InputError, match=r"azimuth_fov_deg: expected -180 <= lo < hi <= 180"):
+        cast_lidar(rig.lidar, T_ml, targets.diamond, T_mt, (), np.random.default_rng(1), azimuth_fov_deg=(10, 10))
 
 
 # -- placements and sessions --------------------------------------------------------------------
@@ -215,6 +269,43 @@ def test_target_poses_are_in_view_in_range_above_the_floor_and_facing(rig, targe
         sample_target_pose(rig, "lidar", targets.diamond, T_mr, rng, Placement(distance_range_m=(60.0, 61.0)), max_tries=5)
     with pytest.raises(InputError, match="kind must be"):
         sample_target_pose(rig, "radar", targets.diamond, T_mr, rng)
+
+
+def test_sample_target_pose_is_sample_pose_in_view_of_the_rig_sensor(rig, targets):
+    T_mr = from_rt(np.eye(3), [0.5, -0.3, 0.0])
+    for kind, model in (("lidar", rig.lidar), ("camera", rig.camera)):
+        a = sample_target_pose(rig, kind, targets.diamond, T_mr, np.random.default_rng(4))
+        view = SensorView(model, T_mr @ rig.T_robot_sensor(kind))
+        b = sample_pose_in_view(view, targets.diamond, np.random.default_rng(4))
+        np.testing.assert_array_equal(a, b)
+
+
+def test_poses_avoiding_other_views_show_in_none_of_them(rig, targets):
+    # a lidar limited to +-50 deg of azimuth and the camera looking left: no shared view
+    T_mr = from_rt(np.eye(3), [0.5, -0.3, 0.0])
+    lidar = SensorView(rig.lidar, T_mr @ rig.T_robot_lidar, azimuth_fov_deg=(-50, 50))
+    camera = SensorView(rig.camera, T_mr @ rig.T_robot_camera)
+    rng = np.random.default_rng(3)
+    for view, other in ((lidar, camera), (camera, lidar)):
+        for _ in range(5):
+            T_mt = sample_pose_in_view(view, targets.diamond, rng, avoid=[other])
+            assert sees_part(view, targets.diamond, T_mt) and not sees_part(other, targets.diamond, T_mt)
+            if view is camera:  # the lidar really casts no ray on it
+                cloud = cast_lidar(rig.lidar, lidar.T_map_sensor, targets.diamond, T_mt, (), rng,
+                                   azimuth_fov_deg=(-50, 50))
+                assert not np.any(cloud.fields["surface"] == 0)
+    everywhere = SensorView(rig.lidar, lidar.T_map_sensor)  # a VLP-16 sees all around
+    assert sees_part(everywhere, targets.diamond, sample_pose_in_view(camera, targets.diamond, rng))
+    with pytest.raises(GeometryError, match=r"after 50 tries \(distance 1.5..5.0 m, outside 1 other sensor view"):
+        sample_pose_in_view(camera, targets.diamond, rng, avoid=[everywhere], max_tries=50)
+    with pytest.raises(InputError, match="only a lidar has an azimuth window"):
+        SensorView(rig.camera, np.eye(4), azimuth_fov_deg=(-10, 10))
+    with pytest.raises(InputError, match="must be a LidarModel or a CameraModel"):
+        SensorView("camera", np.eye(4))
+    with pytest.raises(InputError, match="do not overlap"):
+        sample_pose_in_view(SensorView(rig.lidar, np.eye(4), azimuth_fov_deg=(90, 180)), targets.diamond, rng)
+    with pytest.raises(InputError, match="max_tries must be an integer >= 1"):
+        sample_pose_in_view(camera, targets.diamond, rng, max_tries=0)
 
 
 def test_simulation_is_seeded_and_mcs_noise_has_the_requested_size(rig, targets):

@@ -22,8 +22,9 @@ EPILOG_DETECT = """examples:
   rigcal detect rosbag2_dir/ --rig rig.yaml --out detections/ && rigcal calibrate detections/rig.yaml --out results/
 """
 
-EPILOG_DEMO = """example:
+EPILOG_DEMO = """examples:
   rigcal demo --out demo_out/
+  rigcal demo --mocap --out mocap_demo/ --seed 3
 """
 
 
@@ -199,7 +200,10 @@ def _parser() -> argparse.ArgumentParser:
         "a board is held at 12 placements, writes it as a real ROS bag, detects the board, finds "
         "the placements automatically, calibrates with MCPE, FCPE and PSE and prints the errors "
         "against the simulated truth. Needs no files; about 1-2 minutes. --detections-only "
-        "skips the raw data (seconds).",
+        "skips the raw data (seconds). --mocap instead simulates a motion-capture (Vicon) "
+        "session of a lidar and two cameras with no shared view, writes it as a ROS bag with "
+        "mocap.yaml, runs the `rigcal mocap` pipeline on it and compares every sensor's "
+        "calibration to the robot frame with the truth (seconds).",
         epilog=EPILOG_DEMO,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -207,7 +211,12 @@ def _parser() -> argparse.ArgumentParser:
     d.add_argument("--seed", type=int, default=7, help="random seed (default 7)")
     d.add_argument("--boards", type=int, default=None, help="board placements (default 12 raw, 29 detections-only)")
     d.add_argument("--detections-only", action="store_true", help="simulate detections directly (fast, no raw data)")
-    d.add_argument("--bag-format", default="rosbag1", choices=["rosbag1", "rosbag2-sqlite3", "rosbag2-mcap"])
+    d.add_argument("--mocap", action="store_true",
+                   help="motion-capture demo: a lidar and two cameras with no shared view calibrated to the robot frame")
+    d.add_argument("--holds", type=int, default=None, metavar="N",
+                   help="--mocap: target poses held in each sensor's view (default 4)")
+    d.add_argument("--bag-format", default=None, choices=["rosbag1", "rosbag2-sqlite3", "rosbag2-mcap"],
+                   help="bag format of the raw demo (default rosbag1)")
     d.add_argument("--full-rate", action="store_true", help="simulate lidar and stereo at 10 Hz (slow)")
     d.add_argument("--keep-bag", action="store_true", help="keep the simulated bag in the output folder")
     return p
@@ -519,9 +528,59 @@ def _print_demo(report, console) -> None:
     console.print(f"outputs written to {report.out_dir}/")
 
 
-def _cmd_demo(args, console) -> int:
-    from rigcal.demo import detections_demo, raw_demo
+def _print_mocap_demo(report, console) -> None:
+    from rich.table import Table
 
+    console.print(report.description)
+    table = Table(title="T_robot_sensor against the simulated truth")
+    for col in ("sensor", "model", "initial error mm / deg", "final error mm / deg",
+                "reported std mm / deg", "frames", "kept", "rejected"):
+        table.add_column(col, justify="left" if col in ("sensor", "model") else "right")
+    for o in report.sensors:
+        table.add_row(
+            o.sensor, f"{o.model} {o.kind}",
+            f"{o.initial_error.translation_m * 1000:.1f} / {o.initial_error.rotation_deg:.2f}",
+            f"{o.final_error.translation_m * 1000:.2f} / {o.final_error.rotation_deg:.4f}",
+            f"{o.std_m * 1000:.2f} / {o.std_deg:.4f}",
+            str(o.frames), str(o.kept), str(o.rejected),
+        )
+    console.print(table)
+    for o in report.sensors:
+        console.print(f"{o.sensor} rejections: " + (", ".join(f"{k} {v}" for k, v in o.rejections.items()) or "none"))
+    console.print(
+        "std: root sum of squares of the per-axis standard deviations the calibration reports "
+        "(from its residuals; frames of one hold are not independent, so it is optimistic)"
+    )
+    console.print(f"scene (run.bag, mocap.yaml, target, intrinsics, initial.json) written to {report.scene_dir}/")
+    console.print(f"calibration (calibration.yaml, extrinsics.json, diagnostics.csv, overlays/) written to {report.results_dir}/")
+    console.print(f"run it again with: rigcal mocap {report.scene_dir / 'mocap.yaml'} --out {report.results_dir}")
+
+
+def _cmd_demo(args, console) -> int:
+    from rigcal.demo import detections_demo, mocap_demo, raw_demo
+    from rigcal.errors import InputError
+
+    if args.mocap:
+        others = [flag for flag, given in (
+            ("--detections-only", args.detections_only), ("--boards", args.boards is not None),
+            ("--bag-format", args.bag_format is not None), ("--full-rate", args.full_rate),
+            ("--keep-bag", args.keep_bag)) if given]
+        if others:
+            raise InputError(f"--mocap does not take {', '.join(others)} (it takes --out, --seed and --holds)")
+        with _progress_bar(console) as bar:
+            tasks: dict[str, int] = {}
+
+            def mocap_progress(stage: str, done: int, total: int) -> None:
+                if stage not in tasks:
+                    tasks[stage] = bar.add_task(stage, total=None)
+                bar.update(tasks[stage], completed=done, total=total or None)
+
+            report = mocap_demo(args.out, seed=args.seed, holds=4 if args.holds is None else args.holds,
+                                progress=mocap_progress)
+        _print_mocap_demo(report, console)
+        return 0
+    if args.holds is not None:
+        raise InputError("--holds applies only to the motion-capture demo (--mocap)")
     if args.detections_only:
         _print_demo(detections_demo(args.out, seed=args.seed, boards=args.boards or 29), console)
         return 0
@@ -534,7 +593,7 @@ def _cmd_demo(args, console) -> int:
             bar.update(tasks[stage], completed=done, total=total or None)
 
         report = raw_demo(
-            args.out, seed=args.seed, boards=args.boards or 12, bag_format=args.bag_format,
+            args.out, seed=args.seed, boards=args.boards or 12, bag_format=args.bag_format or "rosbag1",
             full_rate=args.full_rate, keep_bag=args.keep_bag, progress=progress,
         )
     _print_demo(report, console)

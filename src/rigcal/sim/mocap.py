@@ -24,13 +24,15 @@ Data:
   random azimuth offset per scan) cast against the target, the floor, a few clutter boxes
   standing on it and the walls of a room; ranges exact unless ``lidar_range_sigma_m`` is set
   (the paper adds no lidar noise). A :class:`~rigcal.recording.PointCloudFrame` with ``ring``
-  and ``intensity``.
+  and ``intensity``; optionally only the returns within an azimuth window (a Velodyne's FOV
+  setting).
 * camera: the whole frame is a grey background (the paper's Gazebo world); the target is drawn
   inside its projected bounding box only, with analytic anti-aliasing (the checkerboard is box
   filtered over each pixel's footprint on the plate, plate edges by their pixel distance; the
   cylinder is supersampled). Gaussian pixel noise of ``pixel_noise_sigma`` grey levels (1.8 as
   in the paper) is added everywhere. Diamond images are mono, cylinder images BGR (green on
-  grey). Clutter is not drawn in images.
+  grey). Clutter is not drawn in images. Distorted camera models (radtan, Kannala-Brandt, ...)
+  are rendered by casting every pixel's ray through the model (:func:`render_image`).
 * MCS: exact poses (the paper), or each pose perturbed on the right by a translation with
   ``mcs_noise_m`` per axis and a rotation with ``mcs_noise_m / marker_baseline_m`` rad per axis
   (markers ``marker_baseline_m`` apart measured to ``mcs_noise_m``; the Vicon figure is
@@ -56,6 +58,7 @@ from rigcal.errors import GeometryError, InputError, RigcalError
 from rigcal.geometry.se3 import as_rigid, from_rt, invert, se3_exp, transform_points
 from rigcal.geometry.so3 import matrix_from_rpy, so3_exp
 from rigcal.recording import ImageFrame, PointCloudFrame
+from rigcal.sensors.camera.base import MIN_DEPTH_M, CameraModel
 from rigcal.sensors.camera.pinhole import PinholeCamera
 from rigcal.sim.raw.lidar import LidarModel, vlp16
 from rigcal.targets.definition import Target, TargetKind
@@ -72,11 +75,15 @@ __all__ = [
     "MocapSimulation",
     "PaperTargets",
     "Placement",
+    "SensorView",
     "cast_lidar",
+    "check_azimuth_fov",
     "paper_rig",
     "paper_targets",
     "render_image",
+    "sample_pose_in_view",
     "sample_target_pose",
+    "sees_part",
     "simulate_mocap",
     "target_centre",
 ]
@@ -295,7 +302,9 @@ class Placement:
     ``image_margin_px`` inside the image. Diamond faces are turned from facing the sensor by up
     to ``yaw_deg`` / ``pitch_deg`` and rolled in their plane by up to ``roll_deg``; cylinders are
     tilted up to ``cylinder_tilt_deg``. Every target point stays ``ground_clearance_m`` above the
-    floor."""
+    floor. A pose that must stay out of other sensors' views (:func:`sample_pose_in_view`'s
+    ``avoid``) keeps every target point ``avoid_margin_deg`` outside a lidar's beam fan and
+    azimuth window and ``avoid_margin_px`` outside a camera's image (see :func:`sees_part`)."""
 
     distance_range_m: tuple[float, float] = (1.5, 5.0)
     lidar_azimuth_deg: float = 60.0
@@ -309,6 +318,8 @@ class Placement:
     robot_area_m: float = 2.0
     clutter_boxes: int = 3
     room_half_size_m: float = 8.0
+    avoid_margin_deg: float = 2.0
+    avoid_margin_px: float = 20.0
 
     def __post_init__(self) -> None:
         lo, hi = self.distance_range_m
@@ -316,6 +327,58 @@ class Placement:
             raise InputError(f"Placement.distance_range_m must be 0 < min <= max, got {self.distance_range_m}")
         if self.clutter_boxes < 0:
             raise InputError(f"Placement.clutter_boxes must be >= 0, got {self.clutter_boxes}")
+        for name in ("avoid_margin_deg", "avoid_margin_px"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+                raise InputError(f"Placement.{name} must be a number >= 0, got {v!r}")
+
+
+# --------------------------------------------------------------------------------------------
+# a sensor in the scene
+
+
+def check_azimuth_fov(value: object, what: str) -> tuple[float, float] | None:
+    """``None`` or a lidar's azimuth window ``(lo, hi)`` [deg] with ``-180 <= lo < hi <= 180``,
+    as floats; InputError naming ``what`` otherwise."""
+    if value is None:
+        return None
+    try:
+        lo, hi = (float(v) for v in value)  # type: ignore[union-attr]
+    except (TypeError, ValueError):
+        raise InputError(f"{what}: expected (lo, hi) in degrees or None, got {value!r}") from None
+    if not (math.isfinite(lo) and math.isfinite(hi) and -180.0 <= lo < hi <= 180.0):
+        raise InputError(f"{what}: expected -180 <= lo < hi <= 180 [deg], got {value!r}")
+    return lo, hi
+
+
+@dataclass(frozen=True, eq=False)  # holds an array: compare by identity
+class SensorView:
+    """One sensor placed in the map: its ``model`` (a :class:`LidarModel` or a camera model of
+    :mod:`rigcal.sensors.camera`), its pose ``T_map_sensor`` (4, 4) and, for a lidar,
+    ``azimuth_fov_deg`` ``(lo, hi)`` [deg, lidar frame, counter-clockwise from +x]: the window
+    its returns are kept in (None: all around)."""
+
+    model: LidarModel | CameraModel
+    T_map_sensor: np.ndarray
+    azimuth_fov_deg: tuple[float, float] | None = None
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.model, (LidarModel, CameraModel)):
+            raise InputError(f"SensorView.model must be a LidarModel or a CameraModel, got {type(self.model).__name__}")
+        object.__setattr__(self, "T_map_sensor", as_rigid(self.T_map_sensor, "SensorView.T_map_sensor"))
+        fov = check_azimuth_fov(self.azimuth_fov_deg, "SensorView.azimuth_fov_deg")
+        if fov is not None and not self.is_lidar:
+            raise InputError("SensorView.azimuth_fov_deg: only a lidar has an azimuth window")
+        object.__setattr__(self, "azimuth_fov_deg", fov)
+
+    @property
+    def is_lidar(self) -> bool:
+        return isinstance(self.model, LidarModel)
+
+    @property
+    def kind(self) -> str:
+        """``"lidar"`` or ``"camera"``."""
+        return LIDAR if self.is_lidar else CAMERA
 
 
 # --------------------------------------------------------------------------------------------
@@ -419,15 +482,19 @@ def cast_lidar(
     appearance: Appearance = Appearance(),
     t_ns: int = 0,
     sensor: str = "lidar",
+    azimuth_fov_deg: tuple[float, float] | None = None,
 ) -> PointCloudFrame:
     """One revolution of ``model`` at ``T_map_lidar`` against the target at ``T_map_target``,
     the floor (map z = 0) and ``boxes``; a random azimuth offset in [0, step) is drawn from
     ``rng`` (the firing angles of consecutive revolutions differ), then one range noise per
     return (``range_sigma_m``, default the model's). Points (N, 3) in the lidar frame with
     fields ``ring`` (int32), ``intensity`` (float32) and ``surface`` (int8: 0 target, 1 floor,
-    2 clutter) - the last one is simulation truth, not something a lidar reports."""
+    2 clutter) - the last one is simulation truth, not something a lidar reports.
+    ``azimuth_fov_deg`` (lo, hi) [deg, lidar frame, counter-clockwise from +x]: only returns
+    in this window are kept (a Velodyne's FOV setting); None: all around."""
     T_ml = as_rigid(T_map_lidar, "cast_lidar: T_map_lidar")
     T_mt = as_rigid(T_map_target, "cast_lidar: T_map_target")
+    fov = check_azimuth_fov(azimuth_fov_deg, "cast_lidar: azimuth_fov_deg")
     dirs, rings = _lidar_rays(model, float(rng.uniform(0.0, model.azimuth_step_deg)))
     sigma = model.range_sigma_m if range_sigma_m is None else float(range_sigma_m)
     # target, in its own frame
@@ -446,6 +513,9 @@ def cast_lidar(
     cos = np.choose(sid, [cos_target, np.abs(d_m[:, 2]), cos_box])
     keep = np.isfinite(t) & (t >= model.min_range_m) & (t <= model.max_range_m)
     keep &= cos >= math.cos(math.radians(model.max_incidence_deg))
+    if fov is not None:
+        az = np.degrees(np.arctan2(dirs[:, 1], dirs[:, 0]))
+        keep &= (az >= fov[0]) & (az <= fov[1])
     noise = rng.standard_normal(int(keep.sum())) * sigma if sigma > 0 else 0.0
     r = t[keep] + noise
     refl = np.array([appearance.plate_reflectivity if _kind(target) is TargetKind.CHECKERBOARD_DIAMOND
@@ -478,6 +548,35 @@ def _bbox(camera: PinholeCamera, T_camera_target: np.ndarray, points_target: np.
     u0, v0 = max(lo[0], 0), max(lo[1], 0)
     u1, v1 = min(hi[0], camera.width), min(hi[1], camera.height)
     return u0, v0, u1, v1
+
+
+def _dense_outline(target: Target) -> np.ndarray:
+    """Points along the target's outline dense enough that their distorted projections bound
+    its image: the diamond's four edges, or the cylinder's end circles and side lines."""
+    if _kind(target) is TargetKind.CHECKERBOARD_DIAMOND:
+        corners = _outline(target)
+        a = np.linspace(0.0, 1.0, 33)[:-1, None]
+        return np.vstack([(1 - a) * corners[k] + a * corners[(k + 1) % 4] for k in range(4)])
+    r, hgt = float(target.dims["radius_m"]), float(target.dims["height_m"])
+    ang = np.linspace(0, 2 * math.pi, 64, endpoint=False)
+    ring = np.column_stack([r * np.cos(ang), r * np.sin(ang)])
+    z = np.linspace(0.0, -hgt, 17)
+    side = np.array([[x, y, zz] for x, y in ring[::4] for zz in z])
+    return np.vstack([np.column_stack([ring, np.zeros(64)]),
+                      np.column_stack([ring, np.full(64, -hgt)]), side])
+
+
+def _bbox_any(camera: CameraModel, T_camera_target: np.ndarray, target: Target, pad_px: int):
+    """The pixel box (u0, v0, u1, v1) holding the target's image under any camera model: the
+    bounds of its projected outline, or the whole image when part of the outline is outside
+    the model's domain (behind the camera, beyond a lens's field of view); every pixel's own
+    ray decides what it sees."""
+    uv, _ = camera.project(transform_points(T_camera_target, _dense_outline(target)))
+    if not np.all(np.isfinite(uv)):
+        return 0, 0, camera.width, camera.height
+    lo = np.floor(uv.min(axis=0)).astype(int) - pad_px
+    hi = np.ceil(uv.max(axis=0)).astype(int) + pad_px + 1
+    return max(lo[0], 0), max(lo[1], 0), min(hi[0], camera.width), min(hi[1], camera.height)
 
 
 def _tri(x: np.ndarray) -> np.ndarray:
@@ -514,6 +613,20 @@ def _render_diamond(camera: PinholeCamera, T_ct: np.ndarray, target: Target, app
     # Jacobian of (x, y) with respect to (u, v): the pixel's footprint on the plate [m / px]
     xu, xv = (Hi[0, 0] - x * Hi[2, 0]) / c, (Hi[0, 1] - x * Hi[2, 1]) / c
     yu, yv = (Hi[1, 0] - y * Hi[2, 0]) / c, (Hi[1, 1] - y * Hi[2, 1]) / c
+    # shading by the incidence of each pixel's ray
+    ray = np.stack([(u - cx) / fx, (v - cy) / fy, np.ones_like(u)])
+    n = T_ct[:3, 2]
+    cos = np.abs(np.einsum("i,ihw->hw", n, ray)) / np.linalg.norm(ray, axis=0)
+    return (u0, v0, u1, v1), _diamond_shading(target, app, x, y, (xu, xv, yu, yv), cos, c > 0)
+
+
+def _diamond_shading(target: Target, app: Appearance, x: np.ndarray, y: np.ndarray,
+                     jac: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+                     cos: np.ndarray, seen: np.ndarray) -> np.ndarray:
+    """Grey levels of pixels whose centres see the plate at ``(x, y)`` [m, target frame], with
+    the pixel footprint ``jac = (dx/du, dx/dv, dy/du, dy/dv)`` [m / px], the incidence
+    ``cos`` and ``seen`` (False: the ray does not meet the plate's plane)."""
+    xu, xv, yu, yv = jac
     sq = float(target.dims["square_m"])
     cols, rows = int(target.dims["cols"]), int(target.dims["rows"])
     wx = (np.abs(xu) + np.abs(xv)) / sq
@@ -532,18 +645,49 @@ def _render_diamond(camera: PinholeCamera, T_ct: np.ndarray, target: Target, app
     gu = gx * xu + gy * yu
     gv = gx * xv + gy * yv
     sd_px = sd / np.maximum(np.hypot(gu, gv), 1e-12)
-    cover = np.clip(0.5 + sd_px, 0.0, 1.0) * (c > 0)
-    # shading by the incidence of each pixel's ray
-    ray = np.stack([(u - cx) / fx, (v - cy) / fy, np.ones_like(u)])
-    n = T_ct[:3, 2]
-    cos = np.abs(np.einsum("i,ihw->hw", n, ray)) / np.linalg.norm(ray, axis=0)
-    grey = cover * albedo * (0.8 + 0.2 * cos) + (1.0 - cover) * app.background_grey
+    cover = np.clip(0.5 + sd_px, 0.0, 1.0) * seen
+    return cover * albedo * (0.8 + 0.2 * cos) + (1.0 - cover) * app.background_grey
+
+
+def _render_diamond_rays(camera: CameraModel, T_ct: np.ndarray, target: Target, app: Appearance):
+    """:func:`_render_diamond` for any camera model: every pixel's ray (the model's
+    ``unproject``) is intersected with the plate; the pixel footprint on the plate, which the
+    anti-aliasing needs, comes from the neighbouring pixels' intersections (central
+    differences), the lens's distortion included."""
+    u0, v0, u1, v1 = _bbox_any(camera, T_ct, target, 4)
+    if u1 <= u0 or v1 <= v0:
+        return None
+    u, v = np.meshgrid(np.arange(u0 - 1, u1 + 1, dtype=float), np.arange(v0 - 1, v1 + 1, dtype=float))
+    rays = camera.unproject(np.column_stack([u.ravel(), v.ravel()])).reshape(u.shape + (3,))
+    o, d = _rays_to_local(T_ct, np.zeros(3), rays.reshape(-1, 3))
+    d = d.reshape(rays.shape)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = -o[2] / d[..., 2]
+        hit = np.isfinite(s) & (s > 0)
+    s = np.where(hit, s, 0.0)
+    x = np.where(hit, o[0] + s * d[..., 0], 0.0)
+    y = np.where(hit, o[1] + s * d[..., 1], 0.0)
+    inner = (slice(1, -1), slice(1, -1))
+    seen = hit[inner] & hit[1:-1, 2:] & hit[1:-1, :-2] & hit[2:, 1:-1] & hit[:-2, 1:-1]
+    jac = tuple(np.where(seen, val, 0.0) for val in (
+        (x[1:-1, 2:] - x[1:-1, :-2]) / 2, (x[2:, 1:-1] - x[:-2, 1:-1]) / 2,
+        (y[1:-1, 2:] - y[1:-1, :-2]) / 2, (y[2:, 1:-1] - y[:-2, 1:-1]) / 2,
+    ))
+    cos = np.abs(np.nan_to_num(rays[inner]) @ T_ct[:3, 2])
+    grey = _diamond_shading(target, app, x[inner], y[inner], jac, cos, seen)
     return (u0, v0, u1, v1), grey
 
 
-def _cylinder_shade(camera: PinholeCamera, T_ct: np.ndarray, target: Target, u: np.ndarray, v: np.ndarray):
+def _cylinder_shade(camera: CameraModel, T_ct: np.ndarray, target: Target, u: np.ndarray, v: np.ndarray):
     """Shading factor (N,) of the cylinder seen through pixel positions (u, v) (N,), 0 where the
     ray misses it."""
+    if type(camera) is not PinholeCamera:
+        dirs = camera.unproject(np.column_stack([u, v]))
+        ok = np.isfinite(dirs).all(axis=1)
+        dirs[~ok] = (0.0, 0.0, 1.0)
+        o_t, d_t = _rays_to_local(T_ct, np.zeros(3), dirs)
+        t, cos = _hit_cylinder(target, o_t, d_t)
+        return np.where(np.isfinite(t) & ok, 0.8 + 0.2 * cos, 0.0)
     fx, fy, cx, cy = camera.params
     dirs = np.column_stack([(u - cx) / fx, (v - cy) / fy, np.ones(u.size)])
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
@@ -552,11 +696,14 @@ def _cylinder_shade(camera: PinholeCamera, T_ct: np.ndarray, target: Target, u: 
     return np.where(np.isfinite(t), 0.8 + 0.2 * cos, 0.0)
 
 
-def _render_cylinder(camera: PinholeCamera, T_ct: np.ndarray, target: Target, app: Appearance, supersample: int):
+def _render_cylinder(camera: CameraModel, T_ct: np.ndarray, target: Target, app: Appearance, supersample: int):
     """(box, bgr (h, w, 3) float) of the cylinder over the background inside its box. One ray
     per pixel centre, then ``supersample`` x ``supersample`` rays in the pixels next to the
     silhouette's edge (the only ones a partial cover can reach)."""
-    u0, v0, u1, v1 = _bbox(camera, T_ct, _outline(target), 3)
+    if type(camera) is PinholeCamera:
+        u0, v0, u1, v1 = _bbox(camera, T_ct, _outline(target), 3)
+    else:
+        u0, v0, u1, v1 = _bbox_any(camera, T_ct, target, 4)
     if u1 <= u0 or v1 <= v0:
         return None
     U, V = np.meshgrid(np.arange(u0, u1, dtype=float), np.arange(v0, v1, dtype=float))
@@ -586,7 +733,7 @@ def _render_cylinder(camera: PinholeCamera, T_ct: np.ndarray, target: Target, ap
 
 
 def render_image(
-    camera: PinholeCamera,
+    camera: CameraModel,
     T_camera_target: np.ndarray,
     target: Target,
     rng: np.random.Generator,
@@ -600,16 +747,25 @@ def render_image(
     """A full-size image of ``target`` at ``T_camera_target`` (4, 4) on a grey background with
     Gaussian noise of ``noise_sigma`` grey levels in every pixel (and channel). Diamonds give a
     mono (H, W) image, cylinders a BGR (H, W, 3) one (``supersample`` x ``supersample`` rays per
-    pixel on the cylinder's box)."""
+    pixel on the cylinder's box).
+
+    ``camera``: any :class:`~rigcal.sensors.camera.base.CameraModel`. An undistorted
+    :class:`PinholeCamera` maps the plate to the image by a homography (and refuses a target
+    partly behind it: GeometryError); other models (radtan, Kannala-Brandt, double sphere)
+    cast each pixel's ray (``unproject``) against the target, so lens distortion bends the
+    target's edges as a real lens does."""
     T = as_rigid(T_camera_target, "render_image: T_camera_target")
-    if not isinstance(camera, PinholeCamera) or type(camera) is not PinholeCamera:
-        raise InputError(f"render_image: needs an undistorted PinholeCamera, got {type(camera).__name__}")
+    if not isinstance(camera, CameraModel):
+        raise InputError(f"render_image: needs a camera model (rigcal.sensors.camera), got {type(camera).__name__}")
     if not (math.isfinite(noise_sigma) and noise_sigma >= 0):
         raise InputError(f"render_image: noise_sigma must be >= 0, got {noise_sigma!r}")
     W, Hh = camera.width, camera.height
     if _kind(target) is TargetKind.CHECKERBOARD_DIAMOND:
         img = np.full((Hh, W), appearance.background_grey, dtype=np.float32)
-        out = _render_diamond(camera, T, target, appearance)
+        if type(camera) is PinholeCamera:
+            out = _render_diamond(camera, T, target, appearance)
+        else:
+            out = _render_diamond_rays(camera, T, target, appearance)
     else:
         img = np.empty((Hh, W, 3), dtype=np.float32)
         img[:] = np.asarray(appearance.background_bgr, dtype=np.float32)
@@ -645,7 +801,8 @@ def _rot_axis(axis: np.ndarray, angle: float) -> np.ndarray:
     return so3_exp(a / np.linalg.norm(a) * angle)
 
 
-def _in_lidar_view(T_lidar_target: np.ndarray, pts_target: np.ndarray, model: LidarModel, p: Placement, strict: bool) -> bool:
+def _in_lidar_view(T_lidar_target: np.ndarray, pts_target: np.ndarray, model: LidarModel, p: Placement, strict: bool,
+                   azimuth_fov_deg: tuple[float, float] | None = None) -> bool:
     q = transform_points(T_lidar_target, pts_target)
     el = np.degrees(np.arctan2(q[:, 2], np.hypot(q[:, 0], q[:, 1])))
     az = np.degrees(np.arctan2(q[:, 1], q[:, 0]))
@@ -653,13 +810,15 @@ def _in_lidar_view(T_lidar_target: np.ndarray, pts_target: np.ndarray, model: Li
     lo, hi = model.vertical_angles_deg[0], model.vertical_angles_deg[-1]
     m = p.lidar_elevation_margin_deg if strict else 0.0
     ok = (el >= lo + m) & (el <= hi - m) & (rng >= model.min_range_m) & (rng <= model.max_range_m)
+    if azimuth_fov_deg is not None:
+        ok &= (az >= azimuth_fov_deg[0]) & (az <= azimuth_fov_deg[1])
     if strict:
         ok &= np.abs(az) <= p.lidar_azimuth_deg
         return bool(ok.all())
     return bool(ok.mean() >= 0.5)
 
 
-def _in_camera_view(T_camera_target: np.ndarray, pts_target: np.ndarray, camera: PinholeCamera, p: Placement, strict: bool) -> bool:
+def _in_camera_view(T_camera_target: np.ndarray, pts_target: np.ndarray, camera: CameraModel, p: Placement, strict: bool) -> bool:
     q = transform_points(T_camera_target, pts_target)
     if np.any(q[:, 2] <= 0.1):
         return False
@@ -675,35 +834,100 @@ def _visible(kind: str, rig: MocapRig, T_sensor_target: np.ndarray, pts: np.ndar
     return _in_camera_view(T_sensor_target, pts, rig.camera, p, strict)
 
 
-def sample_target_pose(
-    rig: MocapRig,
-    kind: str,
+def _in_view(view: SensorView, T_sensor_target: np.ndarray, pts: np.ndarray, p: Placement, strict: bool) -> bool:
+    if view.is_lidar:
+        return _in_lidar_view(T_sensor_target, pts, view.model, p, strict, view.azimuth_fov_deg)
+    return _in_camera_view(T_sensor_target, pts, view.model, p, strict)
+
+
+def _avoid_points(target: Target) -> np.ndarray:
+    """About a thousand points spread over the target (its template, thinned) and its
+    outline: what :func:`sees_part` checks."""
+    tmpl = target.template
+    return np.vstack([tmpl[:: max(1, len(tmpl) // 1000)], _dense_outline(target)])
+
+
+def _sees_points(view: SensorView, pts_map: np.ndarray, p: Placement) -> bool:
+    q = transform_points(invert(view.T_map_sensor), pts_map)
+    if view.is_lidar:
+        model = view.model
+        el = np.degrees(np.arctan2(q[:, 2], np.hypot(q[:, 0], q[:, 1])))
+        rng = np.linalg.norm(q, axis=1)
+        m = p.avoid_margin_deg
+        ok = (el >= model.vertical_angles_deg[0] - m) & (el <= model.vertical_angles_deg[-1] + m)
+        ok &= (rng >= 0.9 * model.min_range_m) & (rng <= 1.1 * model.max_range_m)
+        if view.azimuth_fov_deg is not None:
+            az = np.degrees(np.arctan2(q[:, 1], q[:, 0]))
+            lo, hi = view.azimuth_fov_deg
+            ok &= (az >= lo - m) & (az <= hi + m)
+        return bool(ok.any())
+    cam = view.model
+    front = q[:, 2] > MIN_DEPTH_M
+    if not front.any():
+        return False
+    uv, _ = cam.project(q[front])
+    m = p.avoid_margin_px
+    with np.errstate(invalid="ignore"):
+        ok = (uv[:, 0] >= -0.5 - m) & (uv[:, 0] <= cam.width - 0.5 + m) & (uv[:, 1] >= -0.5 - m) & (uv[:, 1] <= cam.height - 0.5 + m)
+    return bool(ok.any())
+
+
+def sees_part(view: SensorView, target: Target, T_map_target: np.ndarray, placement: Placement = Placement()) -> bool:
+    """Whether any part of ``target`` at ``T_map_target`` (4, 4) may show in the data of the
+    sensor ``view`` - a conservative test: True when one of about a thousand points spread over
+    the target lies inside the lidar's beam fan (widened by ``placement.avoid_margin_deg``), range
+    limits and azimuth window (widened too), or in front of the camera and projecting within
+    ``placement.avoid_margin_px`` of its image (occlusions are ignored)."""
+    T_mt = as_rigid(T_map_target, "sees_part: T_map_target")
+    _kind(target)
+    return _sees_points(view, transform_points(T_mt, _avoid_points(target)), placement)
+
+
+def sample_pose_in_view(
+    view: SensorView,
     target: Target,
-    T_map_robot: np.ndarray,
     rng: np.random.Generator,
     placement: Placement = Placement(),
+    *,
+    avoid: Sequence[SensorView] = (),
     max_tries: int = 2000,
 ) -> np.ndarray:
-    """``T_map_target`` (4, 4): the target held still in the view of the rig's ``kind``
-    (``"lidar"`` or ``"camera"``) sensor, facing it (see :class:`Placement`). Raises
-    GeometryError when no pose satisfies the placement after ``max_tries`` draws."""
-    if kind not in (LIDAR, CAMERA):
-        raise InputError(f"sample_target_pose: kind must be 'lidar' or 'camera', got {kind!r}")
+    """``T_map_target`` (4, 4): the target held still in the view of the sensor ``view``,
+    facing it (see :class:`Placement`): a lidar sees its whole outline within
+    ``placement.lidar_azimuth_deg`` of its x axis (and within its azimuth window), inside the
+    beam fan; a camera of any model sees it wholly, ``placement.image_margin_px`` inside the
+    image. With ``avoid``, no part of the target may show in any of those sensors' views
+    (:func:`sees_part`): a hold for one sensor of a non-overlapping rig. Raises GeometryError
+    when no pose satisfies all of it after ``max_tries`` draws."""
+    if not isinstance(view, SensorView) or not all(isinstance(v, SensorView) for v in avoid):
+        raise InputError("sample_pose_in_view: view and avoid must be SensorView values")
+    if isinstance(max_tries, bool) or not isinstance(max_tries, (int, np.integer)) or max_tries < 1:
+        raise InputError(f"sample_pose_in_view: max_tries must be an integer >= 1, got {max_tries!r}")
     tk = _kind(target)
-    T_ms = np.asarray(T_map_robot, float) @ rig.T_robot_sensor(kind)
+    T_ms = view.T_map_sensor
     T_sm = invert(T_ms)
     pts = _outline(target)
     ctr = target_centre(target)
     lo, hi = placement.distance_range_m
+    az_lo, az_hi = -placement.lidar_azimuth_deg, placement.lidar_azimuth_deg
+    if view.azimuth_fov_deg is not None:
+        az_lo, az_hi = max(az_lo, view.azimuth_fov_deg[0]), min(az_hi, view.azimuth_fov_deg[1])
+        if az_lo >= az_hi:
+            raise InputError(
+                f"sample_pose_in_view: the lidar's azimuth window {view.azimuth_fov_deg} and the placement's "
+                f"+-{placement.lidar_azimuth_deg} deg do not overlap"
+            )
+    avoid_pts = _avoid_points(target) if avoid else None
     for _ in range(max_tries):
         d = rng.uniform(lo, hi)
-        if kind == LIDAR:
-            az = math.radians(rng.uniform(-placement.lidar_azimuth_deg, placement.lidar_azimuth_deg))
+        if view.is_lidar:
+            az = math.radians(rng.uniform(az_lo, az_hi))
             el = math.radians(rng.uniform(-8.0, 8.0))
             ray_s = np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)])
         else:
-            uv = np.array([[rng.uniform(0, rig.camera.width - 1), rng.uniform(0, rig.camera.height - 1)]])
-            ray_s = rig.camera.unproject(uv)[0]
+            cam = view.model
+            uv = np.array([[rng.uniform(0, cam.width - 1), rng.uniform(0, cam.height - 1)]])
+            ray_s = cam.unproject(uv)[0]
             ray_s = ray_s / np.linalg.norm(ray_s)
         centre_m = T_ms[:3, :3] @ (d * ray_s) + T_ms[:3, 3]
         fwd = centre_m - T_ms[:3, 3]
@@ -724,12 +948,38 @@ def sample_target_pose(
             continue
         if placement.room_half_size_m > 0 and np.any(np.abs(world[:, :2]) > placement.room_half_size_m - 0.5):
             continue
-        if _visible(kind, rig, T_sm @ T_mt, pts, placement, strict=True):
-            return T_mt
+        if not _in_view(view, T_sm @ T_mt, pts, placement, strict=True):
+            continue
+        if avoid_pts is not None:
+            spread = transform_points(T_mt, avoid_pts)
+            if any(_sees_points(v, spread, placement) for v in avoid):
+                continue
+        return T_mt
+    others = f", outside {len(avoid)} other sensor view(s)" if avoid else ""
     raise GeometryError(
-        f"no {target.name} pose in the {kind}'s view satisfies the placement after {max_tries} tries "
-        f"(distance {lo}..{hi} m)"
+        f"no {target.name} pose in the {view.kind}'s view satisfies the placement after {max_tries} tries "
+        f"(distance {lo}..{hi} m{others})"
     )
+
+
+def sample_target_pose(
+    rig: MocapRig,
+    kind: str,
+    target: Target,
+    T_map_robot: np.ndarray,
+    rng: np.random.Generator,
+    placement: Placement = Placement(),
+    max_tries: int = 2000,
+) -> np.ndarray:
+    """``T_map_target`` (4, 4): the target held still in the view of the rig's ``kind``
+    (``"lidar"`` or ``"camera"``) sensor, facing it (see :class:`Placement` and
+    :func:`sample_pose_in_view`). Raises GeometryError when no pose satisfies the placement
+    after ``max_tries`` draws."""
+    if kind not in (LIDAR, CAMERA):
+        raise InputError(f"sample_target_pose: kind must be 'lidar' or 'camera', got {kind!r}")
+    T_ms = np.asarray(T_map_robot, float) @ rig.T_robot_sensor(kind)
+    model = rig.lidar if kind == LIDAR else rig.camera
+    return sample_pose_in_view(SensorView(model, T_ms), target, rng, placement, max_tries=max_tries)
 
 
 def _clutter(rng: np.random.Generator, T_map_robot: np.ndarray, T_map_target: np.ndarray,

@@ -232,6 +232,18 @@ def _progress_bar(console, eta: bool = False):
     return Progress(*columns, console=console, transient=not console.is_terminal)
 
 
+def _stage_progress(bar):
+    """A ``progress(stage, done, total)`` callback that gives every stage its own bar row."""
+    tasks: dict[str, int] = {}
+
+    def progress(stage: str, done: int, total: int) -> None:
+        if stage not in tasks:
+            tasks[stage] = bar.add_task(stage, total=None)
+        bar.update(tasks[stage], completed=done, total=total or None)
+
+    return progress
+
+
 def _pose_table(title: str, estimates, rpy_std_decimals: int = 2):
     """A table of sensor poses (x y z, roll pitch yaw) with their standard deviations."""
     from rich.table import Table
@@ -568,15 +580,8 @@ def _cmd_demo(args, console) -> int:
         if others:
             raise InputError(f"--mocap does not take {', '.join(others)} (it takes --out, --seed and --holds)")
         with _progress_bar(console) as bar:
-            tasks: dict[str, int] = {}
-
-            def mocap_progress(stage: str, done: int, total: int) -> None:
-                if stage not in tasks:
-                    tasks[stage] = bar.add_task(stage, total=None)
-                bar.update(tasks[stage], completed=done, total=total or None)
-
             report = mocap_demo(args.out, seed=args.seed, holds=4 if args.holds is None else args.holds,
-                                progress=mocap_progress)
+                                progress=_stage_progress(bar))
         _print_mocap_demo(report, console)
         return 0
     if args.holds is not None:
@@ -585,16 +590,9 @@ def _cmd_demo(args, console) -> int:
         _print_demo(detections_demo(args.out, seed=args.seed, boards=args.boards or 29), console)
         return 0
     with _progress_bar(console) as bar:
-        tasks: dict[str, int] = {}
-
-        def progress(stage: str, done: int, total: int) -> None:
-            if stage not in tasks:
-                tasks[stage] = bar.add_task(stage, total=None)
-            bar.update(tasks[stage], completed=done, total=total or None)
-
         report = raw_demo(
             args.out, seed=args.seed, boards=args.boards or 12, bag_format=args.bag_format or "rosbag1",
-            full_rate=args.full_rate, keep_bag=args.keep_bag, progress=progress,
+            full_rate=args.full_rate, keep_bag=args.keep_bag, progress=_stage_progress(bar),
         )
     _print_demo(report, console)
     return 0

@@ -403,7 +403,6 @@ def _residual(obs: Sequence[TargetObservation], kind: str, target: Target, T_est
         if obs[0].keypoints_target is not None:
             d = [np.linalg.norm(o.measured - transform_points(T_se @ o.T_robot_target, o.keypoints_target), axis=1) for o in obs]
         else:
-
             d = [surface_distance_m(target, transform_points(invert(T_se @ o.T_robot_target), o.measured)) for o in obs]
         e = np.concatenate(d)
         return float(np.sqrt(np.mean(e**2)) * 1e3)

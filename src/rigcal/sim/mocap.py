@@ -514,8 +514,7 @@ def cast_lidar(
     keep = np.isfinite(t) & (t >= model.min_range_m) & (t <= model.max_range_m)
     keep &= cos >= math.cos(math.radians(model.max_incidence_deg))
     if fov is not None:
-        az = np.degrees(np.arctan2(dirs[:, 1], dirs[:, 0]))
-        keep &= (az >= fov[0]) & (az <= fov[1])
+        keep &= _in_azimuth_window(dirs, fov)
     noise = rng.standard_normal(int(keep.sum())) * sigma if sigma > 0 else 0.0
     r = t[keep] + noise
     refl = np.array([appearance.plate_reflectivity if _kind(target) is TargetKind.CHECKERBOARD_DIAMOND
@@ -801,6 +800,13 @@ def _rot_axis(axis: np.ndarray, angle: float) -> np.ndarray:
     return so3_exp(a / np.linalg.norm(a) * angle)
 
 
+def _in_azimuth_window(directions: np.ndarray, fov_deg: tuple[float, float], margin_deg: float = 0.0) -> np.ndarray:
+    """(N,) whether directions (N, 3) in a lidar's frame lie in its azimuth window ``(lo, hi)``
+    [deg, counter-clockwise from +x], widened by ``margin_deg`` on both sides."""
+    az = np.degrees(np.arctan2(directions[:, 1], directions[:, 0]))
+    return (az >= fov_deg[0] - margin_deg) & (az <= fov_deg[1] + margin_deg)
+
+
 def _in_lidar_view(T_lidar_target: np.ndarray, pts_target: np.ndarray, model: LidarModel, p: Placement, strict: bool,
                    azimuth_fov_deg: tuple[float, float] | None = None) -> bool:
     q = transform_points(T_lidar_target, pts_target)
@@ -811,7 +817,7 @@ def _in_lidar_view(T_lidar_target: np.ndarray, pts_target: np.ndarray, model: Li
     m = p.lidar_elevation_margin_deg if strict else 0.0
     ok = (el >= lo + m) & (el <= hi - m) & (rng >= model.min_range_m) & (rng <= model.max_range_m)
     if azimuth_fov_deg is not None:
-        ok &= (az >= azimuth_fov_deg[0]) & (az <= azimuth_fov_deg[1])
+        ok &= _in_azimuth_window(q, azimuth_fov_deg)
     if strict:
         ok &= np.abs(az) <= p.lidar_azimuth_deg
         return bool(ok.all())
@@ -857,9 +863,7 @@ def _sees_points(view: SensorView, pts_map: np.ndarray, p: Placement) -> bool:
         ok = (el >= model.vertical_angles_deg[0] - m) & (el <= model.vertical_angles_deg[-1] + m)
         ok &= (rng >= 0.9 * model.min_range_m) & (rng <= 1.1 * model.max_range_m)
         if view.azimuth_fov_deg is not None:
-            az = np.degrees(np.arctan2(q[:, 1], q[:, 0]))
-            lo, hi = view.azimuth_fov_deg
-            ok &= (az >= lo - m) & (az <= hi + m)
+            ok &= _in_azimuth_window(q, view.azimuth_fov_deg, m)
         return bool(ok.any())
     cam = view.model
     front = q[:, 2] > MIN_DEPTH_M

@@ -10,6 +10,7 @@ from dataclasses import dataclass, field, replace
 from typing import Mapping
 
 import numpy as np
+import scipy.sparse
 from threadpoolctl import threadpool_limits
 
 from rigcal.dataset import Dataset, SensorKind
@@ -28,8 +29,23 @@ from rigcal.problem.initialise import default_reference, initial_poses
 from rigcal.problem.outliers import OutlierRule, find_outliers
 from rigcal.problem.pairs import all_pairs, pair_data
 from rigcal.problem.result import CalibrationResult, SensorEstimate
-from rigcal.problem.solver import Problem, Solution, merge_independent, prepare, solve
-from rigcal.problem.uncertainty import geometry_warnings, pose_std, relative_estimates, weak_directions
+from rigcal.problem.noise import (
+    detection_units,
+    estimate_theta,
+    group_design,
+    noise_map,
+    sandwich,
+    theta_by_sensor,
+)
+from rigcal.problem.solver import Problem, Solution, linearise, merge_independent, prepare, solve
+from rigcal.problem.uncertainty import (
+    BOUNDED_RADAR_DIRECTIONS,
+    fov_bounds,
+    geometry_warnings,
+    pose_std,
+    relative_estimates,
+    weak_directions,
+)
 
 log = logging.getLogger(__name__)
 
@@ -270,6 +286,7 @@ def calibrate(dataset: Dataset, options: CalibrationOptions = CalibrationOptions
             if options.cross_validation_folds
             else {}
         )
+    sol, bounded, noise_model = _honest_covariance(work, fit, options)
     covariances = {s.name: sol.pose_covariance(s.name) for s in dataset.sensors}
     stds = {name: pose_std(fit.poses[name], cov) for name, cov in covariances.items()}
     warnings = _warnings(work, mode, reference, fit, options, stds)
@@ -289,6 +306,7 @@ def calibrate(dataset: Dataset, options: CalibrationOptions = CalibrationOptions
             covariance=cov,
             std=stds[s.name],
             held=held,
+            bounded=bounded.get(s.name, {}),
         )
     return CalibrationResult(
         mode=mode,
@@ -309,7 +327,57 @@ def calibrate(dataset: Dataset, options: CalibrationOptions = CalibrationOptions
         cross_validation_rmse_m=cv,
         solve_time_s=time.perf_counter() - t0,
         relative=relative_estimates(dataset.names, fit.poses, sol.joint_covariance),
+        noise_model=noise_model,
     )
+
+
+def _honest_covariance(
+    dataset: Dataset, fit: _Fit, options: CalibrationOptions
+) -> tuple[Solution, dict[str, dict[str, tuple[float, float]]], dict[str, dict[str, float]]]:
+    """The solution with a covariance that holds (see :mod:`rigcal.problem.noise`): per-sensor
+    noise estimated from the residuals, the sandwich around the solve's weights (pairs that
+    share a sensor's detections are correlated), and every 2D radar's z, roll and pitch
+    reported as the interval its field of view allows instead of a Gaussian - the other
+    parameters' covariance widened by what those directions may still move them.
+
+    Returns (solution, bounded intervals per sensor, noise std per sensor and component)."""
+    sol = fit.solution
+    problem = fit.problem.with_poses(sol.poses)
+    r_w, J_w, _, _, layout = linearise(problem)
+    sigma = np.concatenate([b.sigma.ravel() for b in problem.observations]) if problem.observations else np.zeros(0)
+    units = detection_units(dataset)
+    D = noise_map(problem, dataset, units)
+    M = group_design(D, units)
+    m, n = J_w.shape
+    theta = estimate_theta(r_w * sigma, M, m / max(m - n, 1))
+    bounded: dict[str, dict[str, tuple[float, float]]] = {}
+    b_cols, b_var = [], []
+    for s in dataset.sensors:
+        if s.kind != SensorKind.RADAR or s.name not in layout.index:
+            continue
+        cols = layout.cols[layout.index[s.name]]
+        dirs = {d: int(cols[i]) for d, i in BOUNDED_RADAR_DIRECTIONS.items() if cols[i] >= 0}
+        if not dirs:
+            continue
+        intervals = fov_bounds(problem, s.name)
+        bounded[s.name] = {d: intervals[d] for d in dirs}
+        for d, c in dirs.items():
+            lo, hi = intervals[d]
+            width = hi - lo if d == "z" else math.radians(hi - lo)
+            b_cols.append(c)
+            b_var.append(width**2 / 12.0)  # uniform over the interval
+    free = np.setdiff1d(np.arange(n), b_cols)
+    Dw = scipy.sparse.diags(1.0 / sigma) @ D
+    Jf = J_w[:, free]
+    Ainv, C_ff = sandwich(Jf, Dw, units, theta)
+    cov = np.zeros((n, n))
+    if b_cols:
+        bc = np.array(b_cols)
+        K = -Ainv @ (Jf.T @ J_w[:, bc])  # how the free parameters follow the bounded ones
+        C_ff = C_ff + (K * np.array(b_var)) @ K.T
+        cov[bc, bc] = b_var
+    cov[np.ix_(free, free)] = C_ff
+    return replace(sol, covariance=cov), bounded, theta_by_sensor(units, theta)
 
 
 def _warnings(

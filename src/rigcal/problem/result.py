@@ -30,6 +30,11 @@ class SensorEstimate:
     covariance: np.ndarray
     std: dict[str, float]
     held: tuple[str, ...] = ()
+    #: directions set by an inequality constraint rather than by measurements (a 2D radar's
+    #: z, roll, pitch): local direction -> (low, high) offset from the estimate that the
+    #: constraints allow (m for x/y/z along the sensor's own axes, deg for roll/pitch/yaw about
+    #: them); their std is not meaningful
+    bounded: dict[str, tuple[float, float]] = field(default_factory=dict)
 
     @property
     def xyz_m(self) -> np.ndarray:
@@ -95,6 +100,9 @@ class CalibrationResult:
     #: camera pairs' reprojection RMS [px] (motion-capture calibration: "robot-camera1")
     reprojection_px: dict[str, float] = field(default_factory=dict)
     relative: dict[str, RelativeEstimate] = field(default_factory=dict)
+    #: noise std per sensor and component estimated from the residuals (see
+    #: :mod:`rigcal.problem.noise`): m; camera depth: m at 1 m range; radar angles: deg
+    noise_model: dict[str, dict[str, float]] = field(default_factory=dict)
 
     def T(self, to: str, frm: str) -> np.ndarray:
         """``T_to_from`` between two calibrated sensors (or the reference)."""

@@ -896,3 +896,15 @@ def merge_independent(problems: list[Problem], solutions: list[Solution]) -> tup
         rank_deficient=any(s.rank_deficient for s in solutions),
         redundancy=tuple(r for s in solutions for r in s.redundancy),
     )
+
+
+def linearise(problem: Problem, layout: "_Layout | None" = None):
+    """The problem linearised at its own poses: whitened residual vector (m,), whitened Jacobian
+    (m, n_free) of the observations (dense), field-of-view constraint values (c,) and their
+    Jacobian (c, n_free), and the layout (``layout.cols`` maps pose -> free columns)."""
+    layout = layout if layout is not None else prepare(problem)
+    T = np.stack([p.T for p in problem.poses]).astype(float)
+    r, J, _, _ = _evaluate(problem, layout, T, "linear", 1.0, True)
+    J = J.toarray() if scipy.sparse.issparse(J) else J
+    c, G = _constraints(problem, layout, T)
+    return r[: layout.m_obs], J[: layout.m_obs], c, G, layout

@@ -106,12 +106,74 @@ def geometry_warnings(dataset: Dataset, pairs: list[tuple[str, str]]) -> list[st
     return out
 
 
+#: local directions of a 2D radar that only its elevation field of view bounds (tangent index)
+BOUNDED_RADAR_DIRECTIONS = {"roll": 0, "pitch": 1, "z": 5}
+#: limits of the search for a bound [rad, m]: a direction no board bounds reports these
+_BOUND_LIMIT = {"roll": np.pi / 2, "pitch": np.pi / 2, "z": 10.0}
+
+
+def fov_bounds(problem, radar: str) -> dict[str, tuple[float, float]]:
+    """The offsets of a 2D radar's roll, pitch [deg] (about its own x, y axes) and z [m] (along
+    its own z axis) from the estimate that keep every board's reflector inside its elevation
+    field of view - the other parameters at the estimate, the three directions jointly free.
+
+    Linear programs on the field-of-view constraints ``-max <= el_i + g_i . d <= max``
+    linearised at the estimate; each interval is the projection of the feasible set on one
+    direction (so a tilt compensated by a height change is allowed). A direction no board
+    bounds gets the search limits (+-90 deg, +-10 m)."""
+    from scipy.optimize import linprog
+
+    from rigcal.problem.residuals import point_in_observer
+    from rigcal.sensors.radar import elevation, elevation_jacobian
+
+    T = {p.name: p.T for p in problem.poses}
+    el, grad, mx = [], [], []
+    for b in problem.limits:
+        sel = [i for i, o in enumerate(b.observer) if o == radar]
+        if not sel:
+            continue
+        TA = np.stack([T[b.frame[i]] for i in sel])
+        TB = np.stack([T[radar]] * len(sel))
+        x, _, JB = point_in_observer(TA, TB, b.points[sel])
+        e = elevation(x)
+        g = np.einsum("ni,nij->nj", elevation_jacobian(x), JB)
+        el.append(e)
+        grad.append(g[:, list(BOUNDED_RADAR_DIRECTIONS.values())])
+        mx.append(b.max_elevation_rad[sel])
+    names = list(BOUNDED_RADAR_DIRECTIONS)
+    lim = np.array([_BOUND_LIMIT[n] for n in names])
+    if not el:
+        out_lim = {n: (-float(lim[i]), float(lim[i])) for i, n in enumerate(names)}
+    else:
+        e, g, m = np.concatenate(el), np.concatenate(grad), np.concatenate(mx)
+        A_ub = np.vstack([g, -g])
+        b_ub = np.concatenate([m - e, m + e])
+        # the estimate itself may sit a hair outside (solver tolerance): never an empty set
+        b_ub = np.maximum(b_ub, 0.0)
+        bounds = [(-lim[i], lim[i]) for i in range(3)]
+        out_lim = {}
+        for i, n in enumerate(names):
+            ends = []
+            for sign in (1.0, -1.0):
+                cost = np.zeros(3)
+                cost[i] = sign
+                res = linprog(cost, A_ub=A_ub, b_ub=b_ub, bounds=bounds, method="highs")
+                ends.append(float(res.x[i]) if res.status == 0 else -sign * float(lim[i]))
+            out_lim[n] = (min(ends[0], 0.0), max(ends[1], 0.0))
+    return {
+        n: ((float(np.degrees(lo)), float(np.degrees(hi))) if n != "z" else (lo, hi))
+        for n, (lo, hi) in out_lim.items()
+    }
+
+
 def radar_fov_edge_boards(values: np.ndarray, tol_rad: float = 1e-4) -> int:
     """How many boards sit on the edge of a 2D radar's elevation field of view."""
     return int(np.sum(values > -tol_rad))
 
 
 __all__ = [
+    "BOUNDED_RADAR_DIRECTIONS",
+    "fov_bounds",
     "geometry_warnings",
     "pose_std",
     "radar_fov_edge_boards",

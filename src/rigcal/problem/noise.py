@@ -1,0 +1,295 @@
+"""A physical noise model of the detections, its estimation from residuals, and the covariance
+of the estimate that follows from it (whatever weights the solve used).
+
+**Noise model.** Every detected point is disturbed by independent noise *units*: a direction
+in the sensor's measurement space and a std ``sqrt(theta[group]) * scale``. The groups are per
+sensor and per physical component:
+
+=========  ============================  ==================================================
+kind       components                    direction and scale
+=========  ============================  ==================================================
+lidar      ``x``, ``y``, ``z``            sensor axes, constant
+camera     ``lateral``, ``depth``         across the ray (2 units, constant); along the
+                                          ray, std proportional to (range / 1 m)^2 (stereo
+                                          and PnP depth error grow with range squared)
+radar      ``range``, ``azimuth``         radial (constant); tangential, std = range x
+                                          azimuth std [rad] (2D: in the radar plane)
+radar3d    ``range``, ``azimuth``,        as the 2D radar, plus the elevation direction
+           ``elevation``                  with std = range x elevation std [rad]
+=========  ============================  ==================================================
+
+**Estimation.** A residual row is linear in the units to first order, ``r = D e``; so
+``E[r_i^2] = sum_u D_iu^2 scale_u^2 theta_g(u)`` - a linear regression of the squared residuals
+on the groups (iteratively weighted, non-negative, corrected for the degrees of freedom the
+solve used). Pairwise residuals (FCPE/MCPE) tell every sensor's noise apart as soon as three
+sensors form a loop; with two sensors only their sum is determined, which is all their pair
+needs.
+
+**Covariance.** With weights ``W`` (the solve's whitening) the estimate's first-order
+covariance is the sandwich ``A^-1 (J'W D Theta D' W J) A^-1``, ``A = J'WJ``: it is right even
+where the weights are not the inverse noise, and it counts the correlation of pairwise
+residuals that share one sensor's detection (FCPE's pairs lidar-camera and lidar-radar both
+contain the lidar's error).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+import numpy as np
+import scipy.optimize
+import scipy.sparse
+
+from rigcal.dataset import Dataset, SensorKind
+from rigcal.problem.residuals import MODEL_POINT, MODEL_RADAR2D
+from rigcal.sensors.radar import project_2d_jacobian
+from rigcal.targets.circle_board import reflectors_from_centres
+
+COMPONENTS = {
+    SensorKind.LIDAR: ("x", "y", "z"),
+    SensorKind.CAMERA: ("lateral", "depth"),
+    SensorKind.RADAR: ("range", "azimuth"),
+    SensorKind.RADAR3D: ("range", "azimuth", "elevation"),
+}
+#: units of each component's std, for reports
+COMPONENT_UNITS = {
+    "x": "m", "y": "m", "z": "m", "lateral": "m", "depth": "m at 1 m",
+    "range": "m", "azimuth": "deg", "elevation": "deg",
+}
+#: smallest variance a group may take (its std: 10 micrometres, or microradians)
+THETA_FLOOR = 1e-10
+
+
+@dataclass(frozen=True, eq=False)  # holds arrays: compare by identity
+class DetectionUnits:
+    """The noise units of every valid detection of a dataset.
+
+    ``groups[g]`` is ``(sensor, component)``; unit ``u`` belongs to group ``group[u]``, moves
+    the detection along ``basis[u]`` ((3,), zero-padded for a 2D radar) with std
+    ``sqrt(theta[group[u]]) * scale[u]``. ``first[(sensor, k, m)]`` is the index of the first
+    unit of point m of board k (its units are consecutive, ``len(COMPONENTS)``-many by kind:
+    3 for 3D sensors, 2 for a 2D radar).
+    """
+
+    groups: tuple[tuple[str, str], ...]
+    group: np.ndarray
+    scale: np.ndarray
+    basis: np.ndarray
+    first: dict
+
+    @property
+    def size(self) -> int:
+        return int(self.group.size)
+
+    def count(self, sensor: str) -> int:
+        return int(np.sum([self.groups[g][0] == sensor for g in self.group]))
+
+
+def _orthonormal(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    helper = np.array([1.0, 0.0, 0.0]) if abs(u[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    e1 = np.cross(u, helper)
+    e1 /= np.linalg.norm(e1)
+    return e1, np.cross(u, e1)
+
+
+def _point_units(kind: SensorKind, p: np.ndarray) -> list[tuple[str, np.ndarray, float]]:
+    """(component, direction (3,), scale) of one detected point ``p`` in the sensor frame."""
+    if kind is SensorKind.LIDAR:
+        return [(c, np.eye(3)[i], 1.0) for i, c in enumerate(("x", "y", "z"))]
+    if kind is SensorKind.RADAR:
+        rho = max(float(np.hypot(p[0], p[1])), 1e-6)
+        u = np.array([p[0], p[1], 0.0]) / rho
+        t = np.array([-u[1], u[0], 0.0])
+        return [("range", u, 1.0), ("azimuth", t, rho)]
+    rng = max(float(np.linalg.norm(p)), 1e-6)
+    u = p / rng
+    if kind is SensorKind.CAMERA:
+        e1, e2 = _orthonormal(u)
+        return [("lateral", e1, 1.0), ("lateral", e2, 1.0), ("depth", u, rng**2)]
+    rho = max(float(np.hypot(p[0], p[1])), 1e-6)
+    t = np.array([-p[1], p[0], 0.0]) / rho
+    e = np.cross(t, u)  # up, along the elevation
+    return [("range", u, 1.0), ("azimuth", t, rho), ("elevation", e, rng)]
+
+
+def detection_units(dataset: Dataset) -> DetectionUnits:
+    """The noise units of every valid detection of ``dataset``."""
+    groups: list[tuple[str, str]] = []
+    index: dict[tuple[str, str], int] = {}
+    gid, scale, basis = [], [], []
+    first: dict = {}
+    for s in dataset.sensors:
+        for c in COMPONENTS[s.kind]:
+            index[(s.name, c)] = len(groups)
+            groups.append((s.name, c))
+        pts = s.points if s.kind.is_point_cloud else s.points[:, None, :]
+        for k in np.flatnonzero(s.valid):
+            for m in range(pts.shape[1]):
+                p = np.zeros(3)
+                p[: pts.shape[2]] = pts[k, m]
+                first[(s.name, int(k), m)] = len(gid)
+                for comp, direction, sc in _point_units(s.kind, p):
+                    gid.append(index[(s.name, comp)])
+                    scale.append(sc)
+                    basis.append(direction)
+    return DetectionUnits(
+        tuple(groups),
+        np.array(gid, dtype=int),
+        np.array(scale, dtype=float),
+        np.array(basis, dtype=float).reshape(-1, 3),
+        first,
+    )
+
+
+def _units_per_point(kind: SensorKind) -> int:
+    return 2 if kind is SensorKind.RADAR else 3
+
+
+def _reflector_jacobians(centres: np.ndarray, dataset: Dataset, h: float = 1e-6) -> np.ndarray:
+    """(4, 3, 3) derivative of one board's reflector (paper's g) w.r.t. each hole centre."""
+    G = np.zeros((4, 3, 3))
+    for m in range(4):
+        for j in range(3):
+            plus, minus = centres.copy(), centres.copy()
+            plus[m, j] += h
+            minus[m, j] -= h
+            d = reflectors_from_centres(plus[None], dataset.board)[0] - reflectors_from_centres(
+                minus[None], dataset.board
+            )[0]
+            G[m, :, j] = d / (2 * h)
+    return G
+
+
+def noise_map(problem, dataset: Dataset, units: DetectionUnits) -> scipy.sparse.csr_matrix:
+    """``D`` (residual rows x units): the first-order effect of each noise unit (at std 1 in
+    its direction, before ``scale``) on each *metric* residual row of ``problem``'s
+    observation batches (rows in the solver's order). Batches of the pairwise and PSE
+    configurations only (point and 2D radar models; frames are sensors or boards)."""
+    names = set(dataset.names)
+    T = {p.name: p.T for p in problem.poses}
+    rows, cols, vals = [], [], []
+    row0 = 0
+    G_cache: dict[tuple[str, int], np.ndarray] = {}
+    for b in problem.observations:
+        if b.model not in (MODEL_POINT, MODEL_RADAR2D):
+            raise ValueError(f"noise_map: batch '{b.label}' has model {b.model!r}")
+        d = b.dim
+        # position of each item within its board (0..3 for 4-point batches)
+        m_of = np.zeros(b.size, dtype=int)
+        seen: dict[int, int] = {}
+        for i, k in enumerate(b.board):
+            m_of[i] = seen.get(int(k), 0)
+            seen[int(k)] = m_of[i] + 1
+        for i in range(b.size):
+            k, fr, ob = int(b.board[i]), b.frame[i], b.observer[i]
+            R_of = T[ob][:3, :3].T @ T[fr][:3, :3]
+            x = R_of @ b.points[i] + T[ob][:3, :3].T @ (T[fr][:3, 3] - T[ob][:3, 3])
+            H = project_2d_jacobian(x[None])[0] if b.model == MODEL_RADAR2D else np.eye(3)
+            rr = row0 + i * d + np.arange(d)
+            obs = dataset.sensor(ob)
+            m_obs = m_of[i] if obs.kind.is_point_cloud else 0
+            u0 = units.first[(ob, k, m_obs)]
+            for c in range(_units_per_point(obs.kind)):
+                direction = -units.basis[u0 + c][:d]
+                rows.extend(rr)
+                cols.extend([u0 + c] * d)
+                vals.extend(direction)
+            if fr not in names:
+                continue  # a board pose (PSE): no detection noise on the frame side
+            frs = dataset.sensor(fr)
+            HR = H @ R_of
+            if frs.kind.is_point_cloud and not obs.kind.is_point_cloud:
+                key = (fr, k)
+                if key not in G_cache:
+                    G_cache[key] = _reflector_jacobians(frs.points[k], dataset)
+                for m in range(4):
+                    u0 = units.first[(fr, k, m)]
+                    for c in range(3):
+                        rows.extend(rr)
+                        cols.extend([u0 + c] * d)
+                        vals.extend(HR @ G_cache[key][m] @ units.basis[u0 + c])
+            else:
+                u0 = units.first[(fr, k, m_of[i] if frs.kind.is_point_cloud else 0)]
+                for c in range(_units_per_point(frs.kind)):
+                    rows.extend(rr)
+                    cols.extend([u0 + c] * d)
+                    vals.extend(HR @ units.basis[u0 + c])
+        row0 += b.size * d
+    return scipy.sparse.csr_matrix((vals, (rows, cols)), shape=(row0, units.size))
+
+
+def group_design(D: scipy.sparse.csr_matrix, units: DetectionUnits) -> np.ndarray:
+    """(rows, groups): ``sum_u D_iu^2 scale_u^2`` per group - the rows' variance per unit theta."""
+    D2 = D.multiply(D).multiply(units.scale[None, :] ** 2).tocsc()
+    onehot = scipy.sparse.csr_matrix(
+        (np.ones(units.size), (np.arange(units.size), units.group)),
+        shape=(units.size, len(units.groups)),
+    )
+    return np.asarray((D2 @ onehot).todense())
+
+
+def estimate_theta(
+    r_metric: np.ndarray, M: np.ndarray, dof_factor: float, floor: float = THETA_FLOOR
+) -> np.ndarray:
+    """Group variances from squared metric residuals: ``r_i^2 * dof_factor ~ M theta``.
+
+    Non-negative least squares, reweighted by the predicted variance of each ``r_i^2`` (three
+    rounds). Groups no residual depends on keep the floor."""
+    y = r_metric**2 * dof_factor
+    used = np.any(M > 0, axis=0)
+    theta = np.full(M.shape[1], floor)
+    if not np.any(used) or y.size == 0:
+        return theta
+    Mu = M[:, used]
+    w = np.ones(y.size)
+    th = np.zeros(Mu.shape[1])
+    for _ in range(3):
+        sw = np.sqrt(w)
+        col = np.maximum(np.sqrt(np.sum((Mu * sw[:, None]) ** 2, axis=0)), 1e-300)
+        th_scaled, _ = scipy.optimize.nnls((Mu * sw[:, None]) / col, y * sw, maxiter=50 * Mu.shape[1])
+        th = th_scaled / col
+        pred = np.maximum(Mu @ th, 1e-30)
+        w = 1.0 / pred**2  # Var(r^2) = 2 E[r^2]^2
+    theta[used] = np.maximum(th, floor)
+    return theta
+
+
+def theta_by_sensor(units: DetectionUnits, theta: np.ndarray) -> dict[str, dict[str, float]]:
+    """Readable stds: ``{sensor: {component: std}}`` (m; depth: m at 1 m; angles: deg)."""
+    out: dict[str, dict[str, float]] = {}
+    for (sensor, comp), th in zip(units.groups, theta):
+        s = float(np.sqrt(th))
+        out.setdefault(sensor, {})[comp] = float(np.degrees(s)) if COMPONENT_UNITS[comp] == "deg" else s
+    return out
+
+
+def sandwich(
+    Jw: np.ndarray, Dw: scipy.sparse.spmatrix, units: DetectionUnits, theta: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """(bread^-1, covariance) for whitened Jacobian ``Jw`` (rows, n) and whitened noise map
+    ``Dw`` (rows, units): ``A^-1 (Jw' Dw Theta Dw' Jw) A^-1`` with ``A = Jw' Jw``."""
+    A = Jw.T @ Jw
+    Ainv = np.linalg.pinv(A, rcond=1e-12, hermitian=True)
+    B = np.asarray((Dw.T @ Jw))  # (units, n)
+    var = theta[units.group] * units.scale**2
+    meat = B.T @ (B * var[:, None])
+    C = Ainv @ meat @ Ainv
+    return Ainv, 0.5 * (C + C.T)
+
+
+def sigma_rows(M: np.ndarray, theta: np.ndarray) -> np.ndarray:
+    """Predicted std of every metric residual row."""
+    return np.sqrt(np.maximum(M @ theta, 1e-30))
+
+
+__all__ = [
+    "COMPONENTS",
+    "COMPONENT_UNITS",
+    "DetectionUnits",
+    "detection_units",
+    "estimate_theta",
+    "group_design",
+    "noise_map",
+    "sandwich",
+    "sigma_rows",
+    "theta_by_sensor",
+]

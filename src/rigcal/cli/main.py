@@ -1,4 +1,9 @@
-"""``rigcal`` command line: parse -> run(args) -> int. Known errors become one line, exit 1."""
+"""``rigcal`` command line: parse -> run(args) -> int. Known errors become one line, exit 1.
+
+Exit codes: 0 calibrated and consistent; 1 error (bad input, or the data cannot determine the
+result); 2 command-line usage; 3 the result contradicts its own noise model (flagged by the
+consistency check): nothing is written unless --force, which writes it with the verdict.
+"""
 
 from __future__ import annotations
 
@@ -11,10 +16,16 @@ from typing import Sequence
 from rigcal import __version__
 from rigcal.errors import RigcalError
 
+#: exit code of a result the consistency check flagged
+EXIT_FLAGGED = 3
+
 EPILOG_CALIBRATE = """examples:
   rigcal calibrate rig.yaml --mode fcpe --out results/
   rigcal calibrate rig.yaml --mode pse --reference lidar1 --out results/ --json
   rigcal calibrate --lidar lidar.csv --camera camera.csv --radar radar.csv --mode fcpe --out results/
+
+exit codes: 0 consistent result written; 1 error; 2 usage; 3 the result contradicts its own
+noise model (nothing written unless --force)
 """
 
 EPILOG_DETECT = """examples:
@@ -69,6 +80,15 @@ def _parser() -> argparse.ArgumentParser:
     c.add_argument("--initial", metavar="FILE", help="initial guesses: a previous calibration.yaml")
     c.add_argument("--cv-folds", type=int, default=5, metavar="N", help="leave-boards-out folds (0 = off)")
     c.add_argument("--no-plot", action="store_true", help="do not write calibration.png")
+    c.add_argument(
+        "--pse-noise", default="iterated", choices=["iterated", "identity"],
+        help="PSE: per-sensor noise re-estimated until converged (default), or fixed at 1 "
+        "(the original tool's variant)",
+    )
+    c.add_argument(
+        "--force", action="store_true",
+        help="write the result even when the consistency check flags it (exit code stays 3)",
+    )
 
     t = sub.add_parser(
         "detect",
@@ -255,18 +275,41 @@ def _pose_table(title: str, estimates, rpy_std_decimals: int = 2):
         x, y, z = est.xyz_m
         r, p, yw = est.rpy_deg
         s = est.std
+        bounded = getattr(est, "bounded", {}) or {}
+
+        def cell(key: str, text: str) -> str:
+            # a direction bounded only by a constraint has no meaningful std
+            return "bnd" if key.split("_")[0] in bounded else text
+
         t.add_row(
             name,
             f"{x:.4f}", f"{y:.4f}", f"{z:.4f}", f"{r:.3f}", f"{p:.3f}", f"{yw:.3f}",
-            "/".join(f"{s[k] * 1000:.1f}" for k in ("x_m", "y_m", "z_m")),
-            "/".join(f"{s[k]:.{rpy_std_decimals}f}" for k in ("roll_deg", "pitch_deg", "yaw_deg")),
+            "/".join(cell(k, f"{s[k] * 1000:.1f}") for k in ("x_m", "y_m", "z_m")),
+            "/".join(cell(k, f"{s[k]:.{rpy_std_decimals}f}") for k in ("roll_deg", "pitch_deg", "yaw_deg")),
         )
     return t
+
+
+def _verdict_lines(result, console) -> None:
+    """The consistency verdict, first thing on the terminal."""
+    v = getattr(result, "verdict", None)
+    if v is None:
+        return
+    if v.status == "flagged":
+        console.print("[bold red]FLAGGED[/bold red]: the result contradicts its own noise model")
+        for c in v.failed:
+            console.print(f"  [red]{c.name}[/red]: {c.detail}")
+    else:
+        console.print("[bold green]consistent[/bold green]: every check agrees with the noise model")
+    for c in v.checks:
+        if c.status == "note":
+            console.print(f"  note ({c.name}): {c.detail}")
 
 
 def _summary(result, console) -> None:
     from rich.table import Table
 
+    _verdict_lines(result, console)
     t = _pose_table(f"{result.mode.upper()} - reference {result.reference}", result.sensors)
     console.print(t)
     e = Table(title="errors between sensors")
@@ -330,8 +373,16 @@ def _cmd_calibrate(args, console) -> int:
         hold_radar_plane=args.hold_radar_plane,
         initial=read_initial_poses(args.initial) if args.initial else None,
         cross_validation_folds=args.cv_folds,
+        pse_noise=args.pse_noise,
     )
     result = calibrate(dataset, options)
+    if result.flagged and not args.force:
+        _summary(result, console)
+        console.print(
+            f"[bold red]not written[/bold red]: the result failed its consistency check "
+            f"(exit code {EXIT_FLAGGED}); --force writes it anyway, with the verdict"
+        )
+        return EXIT_FLAGGED
     write_results(result, args.out)
     if not args.no_plot:
         from rigcal.report.plot import plot_calibration
@@ -340,8 +391,8 @@ def _cmd_calibrate(args, console) -> int:
     if args.json:
         sys.stdout.write(result_to_json_text(result) + "\n")
     _summary(result, console)
-    console.print(f"results written to {args.out}/")
-    return 0
+    console.print(f"results written to {args.out}/" + (" (FLAGGED, written with --force)" if result.flagged else ""))
+    return EXIT_FLAGGED if result.flagged else 0
 
 
 def _detect(recording_path: str, rig_path: str, console):

@@ -15,8 +15,11 @@ from threadpoolctl import threadpool_limits
 
 from rigcal.dataset import Dataset, SensorKind
 from rigcal.errors import ConfigError, ConvergenceError, RigcalError
+from rigcal.problem.consistency import NOTE, Check, pair_checks, verdict
+from rigcal.geometry.se3 import adjoint, invert, se3_exp, se3_log
 from rigcal.problem.configurations import (
     MODES,
+    RADAR_PLANE_FREE,
     RADAR_PLANE_HELD,
     board_block,
     build_pairwise,
@@ -30,6 +33,7 @@ from rigcal.problem.outliers import OutlierRule, find_outliers
 from rigcal.problem.pairs import all_pairs, pair_data
 from rigcal.problem.result import CalibrationResult, SensorEstimate
 from rigcal.problem.noise import (
+    DetectionUnits,
     detection_units,
     estimate_theta,
     group_design,
@@ -37,10 +41,19 @@ from rigcal.problem.noise import (
     sandwich,
     theta_by_sensor,
 )
-from rigcal.problem.solver import Problem, Solution, linearise, merge_independent, prepare, solve
+from rigcal.problem.solver import (
+    PoseBlock,
+    Problem,
+    Solution,
+    linearise,
+    merge_independent,
+    prepare,
+    solve,
+)
 from rigcal.problem.uncertainty import (
     BOUNDED_RADAR_DIRECTIONS,
     fov_bounds,
+    fov_bounds_joint,
     geometry_warnings,
     pose_std,
     relative_estimates,
@@ -51,6 +64,8 @@ log = logging.getLogger(__name__)
 
 #: Cauchy scale [m] of the robust screening solve
 ROBUST_SCALE_M = 0.05
+#: PSE noise models: re-estimated per sensor and axis, or fixed at 1 (the original tool's)
+PSE_NOISE = ("iterated", "identity")
 #: PSE noise floor [m]: no sensor is assumed better than this
 NOISE_FLOOR_M = 1e-4
 
@@ -76,6 +91,9 @@ class CalibrationOptions:
     noise_tolerance: float = 1e-3
     outlier_rule: OutlierRule = field(default_factory=OutlierRule)
     seed: int = 0
+    #: PSE noise: ``iterated`` (per-sensor, per-axis, re-estimated until converged) or
+    #: ``identity`` (1 for every axis of every sensor: the original tool's fixed-noise PSE)
+    pse_noise: str = "iterated"
 
 
 @dataclass(frozen=True, eq=False)  # holds arrays: compare by identity
@@ -99,6 +117,10 @@ def _check(dataset: Dataset, options: CalibrationOptions) -> str:
         )
     if mode == "pse" and dataset.sensor(reference).kind == SensorKind.RADAR:
         raise ConfigError("PSE needs a 3D reference sensor (lidar, camera or 3D radar), not a 2D radar")
+    if options.pse_noise not in PSE_NOISE:
+        raise ConfigError(
+            f"unknown PSE noise '{options.pse_noise}' (expected one of: {', '.join(PSE_NOISE)})"
+        )
     if options.cross_validation_folds < 0 or options.cross_validation_folds == 1:
         raise ConfigError("cross_validation_folds must be 0 (off) or at least 2")
     return reference
@@ -152,6 +174,9 @@ def _fit(
     sol = solve(prob, layout=layout)
     if not sol.converged:
         raise ConvergenceError(f"PSE did not converge: {sol.status}")
+    if options.pse_noise == "identity":
+        boards = {k: sol.poses[board_block(k)] for k in boards}
+        return _Fit({s: sol.poses[s] for s in dataset.names}, prob.with_poses(sol.poses), sol, {}, 0, boards)
     history: list[dict[str, np.ndarray]] = []
     for it in range(1, options.max_noise_iterations + 1):
         sol = solve(
@@ -220,6 +245,155 @@ def _robust_screen(
     return find_outliers(dataset, poses, options.outlier_rule), poses
 
 
+def _relative(dataset: Dataset, fit: _Fit, units: DetectionUnits, reference: str) -> dict:
+    """Every sensor pair's relative pose with its covariance. With a 2D radar reference (MCPE)
+    the height, roll and pitch between two other sensors come from the automatic guess (a fit
+    of their shared boards), not from the pairs solved: their own pair's covariance is added."""
+    sol = fit.solution
+    out = relative_estimates(dataset.names, fit.poses, sol.joint_covariance)
+    if "radar_reference" not in sol.extra:
+        return out
+    for key, rel in out.items():
+        a, b = rel.to, rel.frm
+        if reference in (a, b) or (a, b) not in all_pairs(dataset):
+            continue
+        local = {n: invert(fit.poses[a]) @ fit.poses[n] for n in dataset.names}
+        prob = build_pairwise(dataset, local, a, [(a, b)])
+        prob = replace(prob, poses=tuple(p for p in prob.poses if p.name in (a, b)))
+        if not prob.observations:
+            continue
+        pair_fit = _Fit(local, prob, solve(prob, max_iterations=0), {}, 0, {})
+        C = rel.covariance + _honest_covariance(dataset, pair_fit, units)[0].pose_covariance(b)
+        out[key] = replace(rel, covariance=C, std=pose_std(rel.T_to_from, C))
+    return out
+
+
+def _radar_reference(dataset: Dataset, mode: str, reference: str) -> bool:
+    return mode == "mcpe" and dataset.sensor(reference).kind == SensorKind.RADAR
+
+
+def _fit_radar_reference(
+    dataset: Dataset,
+    mode: str,
+    reference: str,
+    poses0: Mapping[str, np.ndarray],
+    options: CalibrationOptions,
+) -> _Fit:
+    """MCPE with a 2D radar as reference (paper Table III's radar rows). A 2D radar measures
+    no elevation, so each pair (sensor, radar) leaves the sensor's height, roll and pitch
+    relative to the radar undetermined: solved independently they drift apart within the
+    field of view and the sensors disagree with each other. Here every pair is solved with the
+    radar's own z, roll and pitch held at the automatic guess, which puts every reflector on
+    the radar plane for every sensor alike (the sensors stay consistent with each other), and
+    only its in-plane pose (x, y, yaw) free. The covariance adds, jointly for all sensors, how
+    far their poses move when the radar is tilted or lifted to the extremes its field of view
+    allows (the same tilt for every pair: those moves are correlated)."""
+    radar = reference
+    problems, sols, fits = {}, {}, {}
+    for s in dataset.names:
+        if s == radar:
+            continue
+        pair = tuple(sorted((s, radar), key=dataset.names.index))
+        start = {n: invert(poses0[s]) @ poses0[n] for n in dataset.names}  # world: sensor s
+        prob = build_pairwise(dataset, start, s, [pair], hold_radar_plane=True)
+        prob = replace(prob, poses=tuple(p for p in prob.poses if p.name in (s, radar)))
+        if not prob.observations:
+            raise ConfigError(f"MCPE: sensor '{s}' shares no board with the reference '{radar}'")
+        sol = solve(prob)
+        if not sol.converged:
+            raise ConvergenceError(f"MCPE ({s}-{radar}) did not converge: {sol.status}")
+        problems[s] = prob.with_poses(sol.poses)
+        sols[s] = sol
+        fits[s] = _Fit(dict(sol.poses), problems[s], sol, {}, 0, {})
+    units = detection_units(dataset)
+    intervals, vertices = fov_bounds_joint(list(problems.values()), radar)
+    names = list(problems)
+    poses = {radar: np.eye(4)}
+    n = 6 * len(names)
+    cov = np.zeros((n, n))
+    moves = np.zeros((len(vertices), n))
+    for j, s in enumerate(names):
+        T_s_r = sols[s].poses[radar]
+        poses[s] = invert(T_s_r)
+        # T_radar_s = (T_s_r e^xi)^-1 = T_radar_s e^(-Ad(T_s_r) xi)
+        Ad = -adjoint(T_s_r)
+        C_r = _honest_covariance(dataset, fits[s], units)[0].pose_covariance(radar)
+        cov[6 * j : 6 * j + 6, 6 * j : 6 * j + 6] = Ad @ C_r @ Ad.T
+        for v, xi in enumerate(_profile_moves(problems[s], radar, vertices)):
+            moves[v, 6 * j : 6 * j + 6] = Ad @ xi
+    if len(vertices):
+        cov += moves.T @ moves / len(vertices) / 3.0
+    columns = {radar: -np.ones(6, dtype=int)}
+    columns.update({s: np.arange(6 * j, 6 * j + 6) for j, s in enumerate(names)})
+    # residuals depend only on relative poses: the pairs' batches hold in the radar's frame too
+    merged = Problem(
+        tuple(PoseBlock(n, poses[n], (False,) * 6 if n == radar else (True,) * 6) for n in dataset.names),
+        tuple(b for p in problems.values() for b in p.observations),
+        tuple(b for p in problems.values() for b in p.limits),
+    )
+    parts = list(sols.values())
+    sol = Solution(
+        poses=poses,
+        converged=True,
+        status="every pair converged",
+        iterations=max(p.iterations for p in parts),
+        cost=sum(p.cost for p in parts),
+        covariance=cov,
+        columns=columns,
+        residuals=tuple(r for p in parts for r in p.residuals),
+        limit_residuals=tuple(r for p in parts for r in p.limit_residuals),
+        sigma0_sq=float(np.mean([p.sigma0_sq for p in parts])),
+        dof=sum(p.dof for p in parts),
+        gradient_norm=max(p.gradient_norm for p in parts),
+        rank_deficient=any(p.rank_deficient for p in parts),
+        extra={"radar_reference": intervals},
+    )
+    return _Fit(poses, merged, sol, {}, 0, {})
+
+
+def _theta_all_pairs(dataset: Dataset, poses: Mapping[str, np.ndarray], reference: str, units: DetectionUnits) -> np.ndarray:
+    """The noise model estimated from every comparable pair's residuals at ``poses``."""
+    problem = build_pairwise(dataset, poses, reference, all_pairs(dataset))
+    r, J, _, _, _ = linearise(problem)
+    M = group_design(noise_map(problem, dataset, units), units)
+    return estimate_theta(r, M, 1.0)
+
+
+def _profile_moves(problem: Problem, radar: str, vertices: list[np.ndarray]) -> list[np.ndarray]:
+    """A 2D radar's pose moves (right perturbation, (6,)) when its roll, pitch and z are set to
+    each extreme of ``vertices`` and its in-plane pose (x, y, yaw) is solved again with
+    everything else held."""
+    T0 = problem.pose(radar).T
+
+    # only the batches that involve the radar change when it moves
+    def involves(b) -> bool:
+        return radar in b.observer or radar in b.frame
+
+    held = Problem(
+        tuple(replace(p, free=RADAR_PLANE_FREE if p.name == radar else (False,) * 6) for p in problem.poses),
+        tuple(b for b in problem.observations if involves(b)),
+    )  # no limits: the extremes are on them already; this asks only how x, y, yaw follow
+    layout = prepare(held)
+    moves = []
+    for v in vertices:
+        xi = np.zeros(6)
+        xi[list(BOUNDED_RADAR_DIRECTIONS.values())] = v
+        sol = solve(held, layout=layout, start={radar: T0 @ se3_exp(xi)}, max_iterations=50)
+        moves.append(se3_log(invert(T0) @ sol.poses[radar]) if sol.converged else xi)
+    return moves
+
+
+def _profile_spread(problem: Problem, radar: str, vertices: list[np.ndarray]) -> np.ndarray:
+    """(6, 6) second moment of a 2D radar's pose over the set its field of view allows (the
+    moves of :func:`_profile_moves`), scaled to those of a uniform distribution over the set
+    (a third of the extremes')."""
+    moves = _profile_moves(problem, radar, vertices)
+    if not moves:
+        return np.zeros((6, 6))
+    M = np.array(moves)
+    return (M.T @ M) / len(moves) / 3.0
+
+
 def _cross_validation(
     dataset: Dataset, mode: str, reference: str, poses: Mapping[str, np.ndarray], options: CalibrationOptions
 ) -> dict[str, float]:
@@ -234,8 +408,9 @@ def _cross_validation(
     for f in range(folds):
         test = order[f::folds]
         train = np.setdiff1d(usable, test)
+        fit_mode = _fit_radar_reference if _radar_reference(dataset, mode, reference) else _fit
         try:
-            fit = _fit(dataset.select_boards(train), mode, reference, poses, options)
+            fit = fit_mode(dataset.select_boards(train), mode, reference, poses, options)
         except RigcalError as exc:
             log.info("cross-validation fold %d skipped: %s", f, exc)
             continue
@@ -266,7 +441,8 @@ def calibrate(dataset: Dataset, options: CalibrationOptions = CalibrationOptions
         if options.detect_outliers:
             outliers, poses0 = _robust_screen(dataset, reference, poses0, options)
             work = dataset.with_excluded(outliers)
-        fit = _fit(work, mode, reference, poses0, options)
+        fit_mode = _fit_radar_reference if _radar_reference(dataset, mode, reference) else _fit
+        fit = fit_mode(work, mode, reference, poses0, options)
         for _ in range(3):
             if not (options.detect_outliers and fit.solution.converged):
                 break
@@ -276,7 +452,7 @@ def calibrate(dataset: Dataset, options: CalibrationOptions = CalibrationOptions
             for s, ks in more.items():
                 outliers.setdefault(s, set()).update(ks)
             work = dataset.with_excluded(outliers)
-            fit = _fit(work, mode, reference, fit.poses, options)
+            fit = fit_mode(work, mode, reference, fit.poses, options)
         sol = fit.solution
         if not sol.converged:
             raise ConvergenceError(f"{mode.upper()} did not converge: {sol.status}")
@@ -286,10 +462,33 @@ def calibrate(dataset: Dataset, options: CalibrationOptions = CalibrationOptions
             if options.cross_validation_folds
             else {}
         )
-    sol, bounded, noise_model = _honest_covariance(work, fit, options)
+    units = detection_units(work)
+    if "radar_reference" in fit.solution.extra:
+        sol, bounded, theta = fit.solution, {}, _theta_all_pairs(work, fit.poses, reference, units)
+    else:
+        sol, bounded, theta = _honest_covariance(work, fit, units)
     covariances = {s.name: sol.pose_covariance(s.name) for s in dataset.sensors}
     stds = {name: pose_std(fit.poses[name], cov) for name, cov in covariances.items()}
-    warnings = _warnings(work, mode, reference, fit, options, stds)
+    weak = {
+        name: [w for w in weak_directions(std) if w.split(" ")[0] not in bounded.get(name, {})]
+        for name, std in stds.items() if name != reference
+    }
+    warnings = _warnings(work, mode, reference, fit, options, weak, bounded)
+    pair_check, board_check, _ = pair_checks(work, fit.poses, reference, units, theta, sol.joint_covariance)
+    result_verdict = verdict(pair_check, board_check, sol.rank_deficient, bounded, weak)
+    if "radar_reference" in sol.extra:
+        intervals = sol.extra["radar_reference"]
+        iv = ", ".join(f"{d} {lo:+.3g}..{hi:+.3g} {'m' if d == 'z' else 'deg'}" for d, (lo, hi) in intervals.items())
+        text = (
+            f"MCPE with the 2D radar '{reference}' as reference: it measures no elevation, so the "
+            f"other sensors' height, roll and pitch relative to it are held at the automatic guess "
+            f"(every reflector on the radar plane) and are bounded only by its field of view "
+            f"({iv} about / along the radar's own axes, already in the reported covariance); only "
+            "their in-plane pose comes from the pairs. FCPE or a 3D reference determines them "
+            "from the other pairs"
+        )
+        warnings.append(text)
+        result_verdict = replace(result_verdict, checks=result_verdict.checks + (Check("bounded", NOTE, text),))
     sensors = {}
     for s in dataset.sensors:
         cov = covariances[s.name]
@@ -326,32 +525,33 @@ def calibrate(dataset: Dataset, options: CalibrationOptions = CalibrationOptions
         board_poses=fit.board_poses,
         cross_validation_rmse_m=cv,
         solve_time_s=time.perf_counter() - t0,
-        relative=relative_estimates(dataset.names, fit.poses, sol.joint_covariance),
-        noise_model=noise_model,
+        relative=_relative(work, fit, units, reference),
+        noise_model=theta_by_sensor(units, theta),
+        verdict=result_verdict,
     )
 
 
 def _honest_covariance(
-    dataset: Dataset, fit: _Fit, options: CalibrationOptions
-) -> tuple[Solution, dict[str, dict[str, tuple[float, float]]], dict[str, dict[str, float]]]:
+    dataset: Dataset, fit: _Fit, units: DetectionUnits
+) -> tuple[Solution, dict[str, dict[str, tuple[float, float]]], np.ndarray]:
     """The solution with a covariance that holds (see :mod:`rigcal.problem.noise`): per-sensor
     noise estimated from the residuals, the sandwich around the solve's weights (pairs that
     share a sensor's detections are correlated), and every 2D radar's z, roll and pitch
     reported as the interval its field of view allows instead of a Gaussian - the other
     parameters' covariance widened by what those directions may still move them.
 
-    Returns (solution, bounded intervals per sensor, noise std per sensor and component)."""
+    Returns (solution, bounded intervals per sensor, the noise model's group variances)."""
     sol = fit.solution
     problem = fit.problem.with_poses(sol.poses)
     r_w, J_w, _, _, layout = linearise(problem)
     sigma = np.concatenate([b.sigma.ravel() for b in problem.observations]) if problem.observations else np.zeros(0)
-    units = detection_units(dataset)
     D = noise_map(problem, dataset, units)
     M = group_design(D, units)
     m, n = J_w.shape
     theta = estimate_theta(r_w * sigma, M, m / max(m - n, 1))
     bounded: dict[str, dict[str, tuple[float, float]]] = {}
-    b_cols, b_var = [], []
+    b_cols: list[int] = []
+    spread: dict[str, np.ndarray] = {}
     for s in dataset.sensors:
         if s.kind != SensorKind.RADAR or s.name not in layout.index:
             continue
@@ -359,25 +559,22 @@ def _honest_covariance(
         dirs = {d: int(cols[i]) for d, i in BOUNDED_RADAR_DIRECTIONS.items() if cols[i] >= 0}
         if not dirs:
             continue
-        intervals = fov_bounds(problem, s.name)
+        intervals, vertices = fov_bounds(problem, s.name)
         bounded[s.name] = {d: intervals[d] for d in dirs}
-        for d, c in dirs.items():
-            lo, hi = intervals[d]
-            width = hi - lo if d == "z" else math.radians(hi - lo)
-            b_cols.append(c)
-            b_var.append(width**2 / 12.0)  # uniform over the interval
-    free = np.setdiff1d(np.arange(n), b_cols)
+        b_cols += list(dirs.values())
+        spread[s.name] = _profile_spread(problem, s.name, vertices)
     Dw = scipy.sparse.diags(1.0 / sigma) @ D
-    Jf = J_w[:, free]
-    Ainv, C_ff = sandwich(Jf, Dw, units, theta)
+    # Gaussian part with the bounded directions held at the estimate, plus the spread of the
+    # radar's pose over the bounded set (nonlinear: each extreme re-solved)
+    free = np.setdiff1d(np.arange(n), b_cols)
+    _, C_ff = sandwich(J_w[:, free], Dw, units, theta)
     cov = np.zeros((n, n))
-    if b_cols:
-        bc = np.array(b_cols)
-        K = -Ainv @ (Jf.T @ J_w[:, bc])  # how the free parameters follow the bounded ones
-        C_ff = C_ff + (K * np.array(b_var)) @ K.T
-        cov[bc, bc] = b_var
     cov[np.ix_(free, free)] = C_ff
-    return replace(sol, covariance=cov), bounded, theta_by_sensor(units, theta)
+    for name, S in spread.items():
+        cols = layout.cols[layout.index[name]]
+        keep = cols >= 0
+        cov[np.ix_(cols[keep], cols[keep])] += S[np.ix_(keep, keep)]
+    return replace(sol, covariance=cov), bounded, theta
 
 
 def _warnings(
@@ -386,7 +583,8 @@ def _warnings(
     reference: str,
     fit: _Fit,
     options: CalibrationOptions,
-    stds: Mapping[str, Mapping[str, float]],
+    weak: Mapping[str, list[str]],
+    bounded: Mapping[str, Mapping[str, tuple[float, float]]],
 ) -> list[str]:
     sol = fit.solution
     out: list[str] = []
@@ -398,28 +596,22 @@ def _warnings(
             "boards (their reported std is not meaningful)"
         )
     for s in dataset.sensors:
-        if s.name == reference:
-            continue
-        weak = weak_directions(stds[s.name])
-        if s.kind == SensorKind.RADAR and not options.hold_radar_plane:
-            weak_plane = [w for w in weak if w.split(" ")[0] in ("z", "roll", "pitch")]
-            if weak_plane:
-                out.append(
-                    f"{s.name} (2D radar): {', '.join(weak_plane)} weakly observable - a 2D radar "
-                    "measures range and azimuth only; hold z, roll and pitch at a known mounting "
-                    "with --hold-radar-plane and an initial guess"
-                )
-            weak = [w for w in weak if w not in weak_plane]
-        if weak:
-            out.append(f"{s.name}: weakly observable: {', '.join(weak)}")
-    # boards pushed to the edge of a 2D radar's elevation field of view
-    for batch, c in zip(fit.problem.limits, sol.limit_residuals):
-        edge = int(np.sum(c > -math.radians(0.05)))
-        if edge:
-            deg = math.degrees(float(batch.max_elevation_rad[0]))
+        if s.name in bounded:
+            deg = math.degrees(s.max_elevation_rad)
             out.append(
-                f"{batch.observer[0]}: {edge} board(s) of {batch.label} sit on the edge of the "
-                f"±{deg:g} deg elevation field of view - the radar's tilt there is set by that "
-                "limit rather than by measurements; consider --hold-radar-plane"
+                f"{s.name} (2D radar): z, roll and pitch are not measured, only bounded by the "
+                f"±{deg:g} deg elevation field of view (see 'bounded'); to pin them, give the "
+                "known mounting with --initial FILE and --hold-radar-plane"
             )
+        elif (
+            s.kind == SensorKind.RADAR and options.hold_radar_plane and s.name != reference
+            and not (options.initial and s.name in options.initial)
+        ):
+            out.append(
+                f"{s.name} (2D radar): z, roll and pitch are held at the automatic initial guess, "
+                "which assumes every reflector on the radar plane - without --initial this is "
+                "only as good as that assumption (the radar pairs' RMSE shows it)"
+            )
+        if weak.get(s.name):
+            out.append(f"{s.name}: weakly observable: {', '.join(weak[s.name])}")
     return out

@@ -84,58 +84,64 @@ class DetectionUnits:
         return int(np.sum([self.groups[g][0] == sensor for g in self.group]))
 
 
-def _orthonormal(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    helper = np.array([1.0, 0.0, 0.0]) if abs(u[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    e1 = np.cross(u, helper)
-    e1 /= np.linalg.norm(e1)
-    return e1, np.cross(u, e1)
-
-
-def _point_units(kind: SensorKind, p: np.ndarray) -> list[tuple[str, np.ndarray, float]]:
-    """(component, direction (3,), scale) of one detected point ``p`` in the sensor frame."""
+def _point_units(kind: SensorKind, p: np.ndarray) -> tuple[tuple[str, ...], np.ndarray, np.ndarray]:
+    """Noise units of detected points ``p`` (n, 3) in the sensor frame: component names (c,),
+    directions (n, c, 3) and scales (n, c)."""
+    n = p.shape[0]
     if kind is SensorKind.LIDAR:
-        return [(c, np.eye(3)[i], 1.0) for i, c in enumerate(("x", "y", "z"))]
+        return ("x", "y", "z"), np.broadcast_to(np.eye(3), (n, 3, 3)), np.ones((n, 3))
+    rng = np.maximum(np.linalg.norm(p, axis=1), 1e-6)
+    rho = np.maximum(np.hypot(p[:, 0], p[:, 1]), 1e-6)
     if kind is SensorKind.RADAR:
-        rho = max(float(np.hypot(p[0], p[1])), 1e-6)
-        u = np.array([p[0], p[1], 0.0]) / rho
-        t = np.array([-u[1], u[0], 0.0])
-        return [("range", u, 1.0), ("azimuth", t, rho)]
-    rng = max(float(np.linalg.norm(p)), 1e-6)
-    u = p / rng
+        u = np.stack([p[:, 0] / rho, p[:, 1] / rho, np.zeros(n)], axis=1)
+        t = np.stack([-u[:, 1], u[:, 0], np.zeros(n)], axis=1)
+        return ("range", "azimuth"), np.stack([u, t], axis=1), np.stack([np.ones(n), rho], axis=1)
+    u = p / rng[:, None]
     if kind is SensorKind.CAMERA:
-        e1, e2 = _orthonormal(u)
-        return [("lateral", e1, 1.0), ("lateral", e2, 1.0), ("depth", u, rng**2)]
-    rho = max(float(np.hypot(p[0], p[1])), 1e-6)
-    t = np.array([-p[1], p[0], 0.0]) / rho
+        helper = np.where((np.abs(u[:, 0]) < 0.9)[:, None], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
+        e1 = np.cross(u, helper)
+        e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+        e2 = np.cross(u, e1)
+        return (
+            ("lateral", "lateral", "depth"),
+            np.stack([e1, e2, u], axis=1),
+            np.stack([np.ones(n), np.ones(n), rng**2], axis=1),
+        )
+    t = np.stack([-p[:, 1] / rho, p[:, 0] / rho, np.zeros(n)], axis=1)
     e = np.cross(t, u)  # up, along the elevation
-    return [("range", u, 1.0), ("azimuth", t, rho), ("elevation", e, rng)]
+    return ("range", "azimuth", "elevation"), np.stack([u, t, e], axis=1), np.stack([np.ones(n), rho, rng], axis=1)
 
 
 def detection_units(dataset: Dataset) -> DetectionUnits:
     """The noise units of every valid detection of ``dataset``."""
     groups: list[tuple[str, str]] = []
-    index: dict[tuple[str, str], int] = {}
     gid, scale, basis = [], [], []
     first: dict = {}
+    start = 0
     for s in dataset.sensors:
+        index = {}
         for c in COMPONENTS[s.kind]:
-            index[(s.name, c)] = len(groups)
+            index[c] = len(groups)
             groups.append((s.name, c))
         pts = s.points if s.kind.is_point_cloud else s.points[:, None, :]
-        for k in np.flatnonzero(s.valid):
-            for m in range(pts.shape[1]):
-                p = np.zeros(3)
-                p[: pts.shape[2]] = pts[k, m]
-                first[(s.name, int(k), m)] = len(gid)
-                for comp, direction, sc in _point_units(s.kind, p):
-                    gid.append(index[(s.name, comp)])
-                    scale.append(sc)
-                    basis.append(direction)
+        ks = np.flatnonzero(s.valid)
+        per = pts.shape[1]
+        p = np.zeros((ks.size * per, 3))
+        p[:, : pts.shape[2]] = pts[ks].reshape(-1, pts.shape[2])
+        comps, directions, scales = _point_units(s.kind, p)
+        c = len(comps)
+        for j, k in enumerate(ks):
+            for m in range(per):
+                first[(s.name, int(k), m)] = start + (j * per + m) * c
+        gid.append(np.tile([index[x] for x in comps], p.shape[0]))
+        scale.append(scales.reshape(-1))
+        basis.append(directions.reshape(-1, 3))
+        start += p.shape[0] * c
     return DetectionUnits(
         tuple(groups),
-        np.array(gid, dtype=int),
-        np.array(scale, dtype=float),
-        np.array(basis, dtype=float).reshape(-1, 3),
+        np.concatenate(gid).astype(int) if gid else np.zeros(0, dtype=int),
+        np.concatenate(scale) if scale else np.zeros(0),
+        np.concatenate(basis) if basis else np.zeros((0, 3)),
         first,
     )
 
@@ -144,19 +150,17 @@ def _units_per_point(kind: SensorKind) -> int:
     return 2 if kind is SensorKind.RADAR else 3
 
 
-def _reflector_jacobians(centres: np.ndarray, dataset: Dataset, h: float = 1e-6) -> np.ndarray:
-    """(4, 3, 3) derivative of one board's reflector (paper's g) w.r.t. each hole centre."""
-    G = np.zeros((4, 3, 3))
-    for m in range(4):
-        for j in range(3):
-            plus, minus = centres.copy(), centres.copy()
-            plus[m, j] += h
-            minus[m, j] -= h
-            d = reflectors_from_centres(plus[None], dataset.board)[0] - reflectors_from_centres(
-                minus[None], dataset.board
-            )[0]
-            G[m, :, j] = d / (2 * h)
-    return G
+def reflector_jacobians(centres: np.ndarray, dataset: Dataset, h: float = 1e-6) -> np.ndarray:
+    """(K, 4, 3, 3) derivative of each board's reflector (paper's g) w.r.t. each hole centre,
+    for hole centres (K, 4, 3) (central differences; NaN for undetected boards)."""
+    c = np.asarray(centres, dtype=float)
+    K = c.shape[0]
+    steps = np.zeros((12, 4, 3))
+    steps.reshape(12, 12)[np.arange(12), np.arange(12)] = h
+    batch = np.concatenate([c[:, None] + steps[None], c[:, None] - steps[None]], axis=1)  # (K, 24, 4, 3)
+    g = reflectors_from_centres(batch.reshape(-1, 4, 3), dataset.board).reshape(K, 2, 4, 3, 3)
+    d = (g[:, 0] - g[:, 1]) / (2 * h)  # (K, m, j, out)
+    return np.swapaxes(d, 2, 3)  # (K, m, out, j)
 
 
 def noise_map(problem, dataset: Dataset, units: DetectionUnits) -> scipy.sparse.csr_matrix:
@@ -168,7 +172,7 @@ def noise_map(problem, dataset: Dataset, units: DetectionUnits) -> scipy.sparse.
     T = {p.name: p.T for p in problem.poses}
     rows, cols, vals = [], [], []
     row0 = 0
-    G_cache: dict[tuple[str, int], np.ndarray] = {}
+    G_cache: dict[str, np.ndarray] = {}
     for b in problem.observations:
         if b.model not in (MODEL_POINT, MODEL_RADAR2D):
             raise ValueError(f"noise_map: batch '{b.label}' has model {b.model!r}")
@@ -198,15 +202,14 @@ def noise_map(problem, dataset: Dataset, units: DetectionUnits) -> scipy.sparse.
             frs = dataset.sensor(fr)
             HR = H @ R_of
             if frs.kind.is_point_cloud and not obs.kind.is_point_cloud:
-                key = (fr, k)
-                if key not in G_cache:
-                    G_cache[key] = _reflector_jacobians(frs.points[k], dataset)
+                if fr not in G_cache:
+                    G_cache[fr] = reflector_jacobians(frs.points, dataset)
                 for m in range(4):
                     u0 = units.first[(fr, k, m)]
                     for c in range(3):
                         rows.extend(rr)
                         cols.extend([u0 + c] * d)
-                        vals.extend(HR @ G_cache[key][m] @ units.basis[u0 + c])
+                        vals.extend(HR @ G_cache[fr][k, m] @ units.basis[u0 + c])
             else:
                 u0 = units.first[(fr, k, m_of[i] if frs.kind.is_point_cloud else 0)]
                 for c in range(_units_per_point(frs.kind)):
@@ -263,15 +266,23 @@ def theta_by_sensor(units: DetectionUnits, theta: np.ndarray) -> dict[str, dict[
 
 
 def sandwich(
-    Jw: np.ndarray, Dw: scipy.sparse.spmatrix, units: DetectionUnits, theta: np.ndarray
+    Jw: np.ndarray,
+    Dw: scipy.sparse.spmatrix,
+    units: DetectionUnits,
+    theta: np.ndarray,
+    prior_precision: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(bread^-1, covariance) for whitened Jacobian ``Jw`` (rows, n) and whitened noise map
-    ``Dw`` (rows, units): ``A^-1 (Jw' Dw Theta Dw' Jw) A^-1`` with ``A = Jw' Jw``."""
+    ``Dw`` (rows, units): ``A^-1 (Jw' Dw Theta Dw' Jw + P) A^-1`` with ``A = Jw' Jw + P`` and
+    ``P = diag(prior_precision)`` (n,) - independent priors on single parameters (0: none)."""
     A = Jw.T @ Jw
-    Ainv = np.linalg.pinv(A, rcond=1e-12, hermitian=True)
     B = np.asarray((Dw.T @ Jw))  # (units, n)
     var = theta[units.group] * units.scale**2
     meat = B.T @ (B * var[:, None])
+    if prior_precision is not None:
+        A = A + np.diag(prior_precision)
+        meat = meat + np.diag(prior_precision)
+    Ainv = np.linalg.pinv(A, rcond=1e-12, hermitian=True)
     C = Ainv @ meat @ Ainv
     return Ainv, 0.5 * (C + C.T)
 
@@ -289,6 +300,7 @@ __all__ = [
     "estimate_theta",
     "group_design",
     "noise_map",
+    "reflector_jacobians",
     "sandwich",
     "sigma_rows",
     "theta_by_sensor",

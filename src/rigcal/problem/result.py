@@ -103,6 +103,13 @@ class CalibrationResult:
     #: noise std per sensor and component estimated from the residuals (see
     #: :mod:`rigcal.problem.noise`): m; camera depth: m at 1 m range; radar angles: deg
     noise_model: dict[str, dict[str, float]] = field(default_factory=dict)
+    #: the consistency check (:mod:`rigcal.problem.consistency`); None: not checked
+    verdict: Any = None
+
+    @property
+    def flagged(self) -> bool:
+        """True when a consistency check failed: the result contradicts its noise model."""
+        return self.verdict is not None and self.verdict.status == "flagged"
 
     def T(self, to: str, frm: str) -> np.ndarray:
         """``T_to_from`` between two calibrated sensors (or the reference)."""
@@ -120,6 +127,7 @@ class CalibrationResult:
             "reference": self.reference,
             "mode": self.mode,
             "converged": bool(self.converged),
+            "verdict": self.verdict.to_dict() if self.verdict is not None else None,
             "num_boards": int(self.num_boards),
             "sensors": {
                 name: {
@@ -131,6 +139,7 @@ class CalibrationResult:
                     "std": {k: f(est.std[k]) for k in STD_KEYS},
                     "covariance": [[f(v) for v in row] for row in est.covariance],
                     "held": list(est.held),
+                    "bounded": {d: [f(lo), f(hi)] for d, (lo, hi) in est.bounded.items()},
                 }
                 for name, est in self.sensors.items()
             },
@@ -156,6 +165,7 @@ class CalibrationResult:
             "ignored": {k: [int(b) for b in v] for k, v in self.ignored.items()},
             "noise_sigma_m": {k: [f(s) for s in v] for k, v in self.noise_sigma_m.items()},
             "noise_iterations": int(self.noise_iterations),
+            "noise_model": {k: {c: f(v) for c, v in comps.items()} for k, comps in self.noise_model.items()},
             "warnings": list(self.warnings),
             "iterations": int(self.iterations),
             "cost": f(self.cost),

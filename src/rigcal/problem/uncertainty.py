@@ -112,7 +112,11 @@ BOUNDED_RADAR_DIRECTIONS = {"roll": 0, "pitch": 1, "z": 5}
 _BOUND_LIMIT = {"roll": np.pi / 2, "pitch": np.pi / 2, "z": 10.0}
 
 
-def fov_bounds(problem, radar: str) -> dict[str, tuple[float, float]]:
+def fov_bounds(problem, radar: str) -> tuple[dict[str, tuple[float, float]], list[np.ndarray]]:
+    return fov_bounds_joint([problem], radar)
+
+
+def fov_bounds_joint(problems, radar: str) -> tuple[dict[str, tuple[float, float]], list[np.ndarray]]:
     """The offsets of a 2D radar's roll, pitch [deg] (about its own x, y axes) and z [m] (along
     its own z axis) from the estimate that keep every board's reflector inside its elevation
     field of view - the other parameters at the estimate, the three directions jointly free.
@@ -120,15 +124,16 @@ def fov_bounds(problem, radar: str) -> dict[str, tuple[float, float]]:
     Linear programs on the field-of-view constraints ``-max <= el_i + g_i . d <= max``
     linearised at the estimate; each interval is the projection of the feasible set on one
     direction (so a tilt compensated by a height change is allowed). A direction no board
-    bounds gets the search limits (+-90 deg, +-10 m)."""
+    bounds gets the search limits (+-90 deg, +-10 m). ``problems``: each with the radar as a
+    pose block (the constraints of all of them hold at once)."""
     from scipy.optimize import linprog
 
     from rigcal.problem.residuals import point_in_observer
     from rigcal.sensors.radar import elevation, elevation_jacobian
 
-    T = {p.name: p.T for p in problem.poses}
     el, grad, mx = [], [], []
-    for b in problem.limits:
+    for problem, b in ((pr, b) for pr in problems for b in pr.limits):
+        T = {p.name: p.T for p in problem.poses}
         sel = [i for i, o in enumerate(b.observer) if o == radar]
         if not sel:
             continue
@@ -142,8 +147,10 @@ def fov_bounds(problem, radar: str) -> dict[str, tuple[float, float]]:
         mx.append(b.max_elevation_rad[sel])
     names = list(BOUNDED_RADAR_DIRECTIONS)
     lim = np.array([_BOUND_LIMIT[n] for n in names])
+    vertices: list[np.ndarray] = []
     if not el:
         out_lim = {n: (-float(lim[i]), float(lim[i])) for i, n in enumerate(names)}
+        vertices = [s * lim * np.eye(3)[i] for i in range(3) for s in (-1.0, 1.0)]
     else:
         e, g, m = np.concatenate(el), np.concatenate(grad), np.concatenate(mx)
         A_ub = np.vstack([g, -g])
@@ -158,12 +165,17 @@ def fov_bounds(problem, radar: str) -> dict[str, tuple[float, float]]:
                 cost = np.zeros(3)
                 cost[i] = sign
                 res = linprog(cost, A_ub=A_ub, b_ub=b_ub, bounds=bounds, method="highs")
-                ends.append(float(res.x[i]) if res.status == 0 else -sign * float(lim[i]))
+                if res.status == 0:
+                    ends.append(float(res.x[i]))
+                    vertices.append(np.array(res.x, dtype=float))
+                else:
+                    ends.append(-sign * float(lim[i]))
+                    vertices.append(-sign * lim * np.eye(3)[i])
             out_lim[n] = (min(ends[0], 0.0), max(ends[1], 0.0))
     return {
         n: ((float(np.degrees(lo)), float(np.degrees(hi))) if n != "z" else (lo, hi))
         for n, (lo, hi) in out_lim.items()
-    }
+    }, vertices
 
 
 def radar_fov_edge_boards(values: np.ndarray, tol_rad: float = 1e-4) -> int:
@@ -174,6 +186,7 @@ def radar_fov_edge_boards(values: np.ndarray, tol_rad: float = 1e-4) -> int:
 __all__ = [
     "BOUNDED_RADAR_DIRECTIONS",
     "fov_bounds",
+    "fov_bounds_joint",
     "geometry_warnings",
     "pose_std",
     "radar_fov_edge_boards",

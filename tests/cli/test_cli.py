@@ -241,3 +241,46 @@ def test_unknown_mode_is_a_usage_error(tmp_path, manifest, capsys):
     assert len(error_lines) == 1
     assert "--mode" in error_lines[0] and "bogus" in error_lines[0]
     assert not out.exists()
+
+
+def test_a_flagged_result_is_not_written_and_exits_3(tmp_path, sim, capsys):
+    from rigcal.sim.rig import move_boards
+
+    bad = write_dataset(move_boards(sim.dataset, "lidar1", [3], [0.8, 0.0, 0.0]), tmp_path / "bad")
+    out = tmp_path / "out"
+    code = run(["calibrate", str(bad), "--keep-outliers", "--cv-folds", "0", "--out", str(out)])
+    captured = capsys.readouterr()
+    assert code == 3
+    assert captured.out.lstrip().startswith("FLAGGED")  # the verdict comes first
+    assert "board 3" in captured.out and "--force" in captured.out
+    assert not out.exists()
+    # --force writes it, with the verdict in calibration.yaml; the exit code stays 3
+    code = run(["calibrate", str(bad), "--keep-outliers", "--cv-folds", "0", "--no-plot", "--force", "--out", str(out)])
+    assert code == 3
+    import yaml
+
+    data = yaml.safe_load((out / "calibration.yaml").read_text())
+    assert data["verdict"]["status"] == "flagged"
+    assert any(c["name"] == "boards" and c["status"] == "fail" for c in data["verdict"]["checks"])
+
+
+def test_consistent_result_carries_its_verdict_and_bounds(tmp_path, manifest, capsys):
+    out = tmp_path / "out"
+    code = run(["calibrate", str(manifest), "--cv-folds", "0", "--no-plot", "--out", str(out), "--json"])
+    captured = capsys.readouterr()
+    assert code == 0
+    data = json.loads(captured.out)
+    assert data["verdict"]["status"] == "consistent"
+    assert set(data["sensors"]["radar1"]["bounded"]) == {"roll", "pitch", "z"}
+    assert data["sensors"]["camera1"]["bounded"] == {}
+    assert set(data["noise_model"]["camera1"]) == {"lateral", "depth"}
+    assert captured.err.lstrip().startswith("consistent")
+    # the terminal marks the bounded directions instead of printing a std for them
+    assert "bnd" in captured.err
+
+
+def test_pse_identity_noise_from_the_command_line(tmp_path, manifest, capsys):
+    code = run(["calibrate", str(manifest), "--mode", "pse", "--pse-noise", "identity", "--cv-folds", "0",
+                "--no-plot", "--out", str(tmp_path / "o"), "--json"])
+    data = json.loads(capsys.readouterr().out)
+    assert code == 0 and data["mode"] == "pse" and data["noise_iterations"] == 0

@@ -1,0 +1,89 @@
+"""The consistency verdict: clean simulated rigs pass, results that contradict the noise
+model (a wrong pose, a bad board kept) are flagged, and 2D radar bounds hold the truth."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from rigcal.geometry.se3 import invert, se3_exp, se3_log
+from rigcal.problem.calibrate import CalibrationOptions, calibrate
+from rigcal.problem.consistency import FAIL, NOTE, PASS, Check, pair_checks, verdict
+from rigcal.problem.noise import detection_units
+from rigcal.sim.rig import make_rig_placements, move_boards, prius_like_rig, simulate
+from rigcal.study.board_coverage import TANGENT
+
+
+@pytest.fixture(scope="module")
+def sim():
+    rng = np.random.default_rng(21)
+    sensors = prius_like_rig()
+    return simulate(sensors, make_rig_placements(rng, sensors, 15, min_fraction=1.0), rng=rng)
+
+
+@pytest.mark.parametrize("mode", ["mcpe", "fcpe", "pse"])
+def test_clean_rig_is_consistent(sim, mode):
+    r = calibrate(sim.dataset, CalibrationOptions(mode=mode))
+    assert r.verdict.status == "consistent", r.verdict.failed
+    assert not r.flagged
+    names = [c.name for c in r.verdict.checks]
+    assert names[:3] == ["pairs", "boards", "rank"]
+    assert "bounded" in names  # the 2D radar's z, roll, pitch
+
+
+def test_a_wrong_pose_is_flagged(sim):
+    r = calibrate(sim.dataset, CalibrationOptions(mode="fcpe"))
+    poses = {n: e.T_reference_sensor for n, e in r.sensors.items()}
+    from rigcal.problem.calibrate import _theta_all_pairs
+
+    units = detection_units(sim.dataset)
+    theta = _theta_all_pairs(sim.dataset, poses, "lidar1", units)
+    ok, _, _ = pair_checks(sim.dataset, poses, "lidar1", units, theta, lambda names: np.zeros((6 * len(names),) * 2))
+    assert ok.status == PASS
+    wrong = dict(poses)
+    wrong["camera1"] = poses["camera1"] @ se3_exp(np.array([0.0, 0.0, 0.0, 0.05, 0.0, 0.0]))
+    bad, _, ratios = pair_checks(sim.dataset, wrong, "lidar1", units, theta, lambda names: np.zeros((6 * len(names),) * 2))
+    assert bad.status == FAIL
+    assert "lidar1-camera1" in bad.detail and ratios["lidar1-camera1"] > 3
+
+
+def test_a_bad_board_kept_is_flagged_and_named(sim):
+    moved = move_boards(sim.dataset, "lidar1", [4], [0.6, 0.0, 0.0])
+    r = calibrate(moved, CalibrationOptions(mode="fcpe", detect_outliers=False))
+    assert r.flagged
+    boards = next(c for c in r.verdict.checks if c.name == "boards")
+    assert boards.status == FAIL and "board 4" in boards.detail
+    # with the outlier search on, the board is excluded and the result is consistent
+    r = calibrate(moved, CalibrationOptions(mode="fcpe"))
+    assert r.outliers and not r.flagged
+
+
+def test_rank_deficiency_fails_and_bounds_are_notes():
+    v = verdict(Check("pairs", PASS, ""), Check("boards", PASS, ""), True, {"radar1": {"z": (-0.1, 0.2)}}, {})
+    assert v.status == "flagged" and [c.name for c in v.failed] == ["rank"]
+    assert any(c.status == NOTE and c.name == "bounded" for c in v.checks)
+    assert v.to_dict()["status"] == "flagged"
+
+
+@pytest.mark.parametrize("mode", ["mcpe", "fcpe", "pse"])
+def test_radar_bounds_hold_the_truth(sim, mode):
+    r = calibrate(sim.dataset, CalibrationOptions(mode=mode))
+    est = r.sensors["radar1"]
+    assert set(est.bounded) == {"roll", "pitch", "z"}
+    xi = se3_log(invert(est.T_reference_sensor) @ sim.truth_T("lidar1", "radar1"))
+    for d, (lo, hi) in est.bounded.items():
+        assert lo <= 0.0 <= hi
+        i = TANGENT.index(d)
+        value = xi[i] if d == "z" else math.degrees(xi[i])
+        assert lo <= value <= hi, (d, lo, value, hi)
+    # the elevation field of view is +-9 deg: a tilt interval wider than the whole field of
+    # view in one direction would mean the bound found nothing
+    assert est.bounded["pitch"][1] - est.bounded["pitch"][0] < 90.0
+
+
+def test_held_radar_plane_is_not_bounded(sim):
+    r = calibrate(sim.dataset, CalibrationOptions(mode="fcpe", hold_radar_plane=True))
+    assert r.sensors["radar1"].bounded == {}
+    assert r.sensors["radar1"].held == ("z", "roll", "pitch")

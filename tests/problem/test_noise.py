@@ -1,0 +1,112 @@
+"""The detection noise model: units, the noise map against finite differences, the noise
+estimate against the simulated truth, and the sandwich covariance against Monte Carlo."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rigcal.dataset import SensorKind
+from rigcal.problem.configurations import build_pairwise
+from rigcal.problem.initialise import initial_poses
+from rigcal.problem.noise import (
+    COMPONENTS,
+    detection_units,
+    estimate_theta,
+    group_design,
+    noise_map,
+    theta_by_sensor,
+)
+from rigcal.problem.pairs import all_pairs
+from rigcal.problem.solver import linearise, solve
+from rigcal.sim.rig import make_rig_placements, random_rig, simulate
+
+
+@pytest.fixture(scope="module")
+def rig():
+    rng = np.random.default_rng(11)
+    sensors = random_rig(rng, 1, 2, 1)
+    return sensors, make_rig_placements(rng, sensors, 20)
+
+
+def _truth_poses(sim, reference="lidar1"):
+    return {n: sim.truth_T(reference, n) for n in sim.dataset.names}
+
+
+def test_every_valid_detection_has_its_kinds_units(rig):
+    sensors, boards = rig
+    ds = simulate(sensors, boards, rng=0).dataset
+    units = detection_units(ds)
+    for s in ds.sensors:
+        per = 4 if s.kind.is_point_cloud else 1
+        per_point = 2 if s.kind is SensorKind.RADAR else 3
+        assert units.count(s.name) == int(s.valid.sum()) * per * per_point
+        assert {c for n, c in units.groups if n == s.name} == set(COMPONENTS[s.kind])
+    np.testing.assert_allclose(np.linalg.norm(units.basis, axis=1), 1.0, atol=1e-12)
+
+
+def test_noise_map_is_the_residuals_derivative(rig):
+    """Moving one detection along one unit's direction changes the metric residuals by D's
+    column (finite differences through the whole pair construction, reflectors included)."""
+    sensors, boards = rig
+    ds = simulate(sensors, boards, rng=1).dataset
+    poses = initial_poses(ds, "lidar1")
+    problem = build_pairwise(ds, poses, "lidar1", all_pairs(ds))
+    units = detection_units(ds)
+    D = noise_map(problem, ds, units).toarray()
+    r0 = linearise(problem)[0]
+    rng = np.random.default_rng(0)
+    for u in rng.choice(units.size, 25, replace=False):
+        sensor, _ = units.groups[units.group[u]]
+        key = next(k for k, v in units.first.items() if k[0] == sensor and v <= u < v + (2 if ds.sensor(sensor).kind is SensorKind.RADAR else 3))
+        _, k, m = key
+        det = ds.sensor(sensor)
+        h = 1e-6
+        pts = np.array(det.points)
+        step = units.basis[u][: pts.shape[-1]] * h
+        if det.kind.is_point_cloud:
+            pts[k, m] += step
+        else:
+            pts[k] += step
+        from dataclasses import replace
+
+        moved = replace(ds, sensors=tuple(replace(s, points=pts) if s.name == sensor else s for s in ds.sensors))
+        r1 = linearise(build_pairwise(moved, poses, "lidar1", all_pairs(moved)))[0]
+        np.testing.assert_allclose((r1 - r0) / h, D[:, u], atol=1e-5)
+
+
+def test_noise_estimate_recovers_the_simulated_noise(rig):
+    """FCPE residuals of a rig with very different noise per sensor tell the sensors apart."""
+    sensors, boards = rig
+    from dataclasses import replace
+
+    noisy = tuple(
+        replace(s, sigma_m=0.004) if s.kind is SensorKind.LIDAR
+        else replace(s, sigma_m=0.02, depth_sigma_at_1m_m=0.0) if s.kind is SensorKind.CAMERA
+        else replace(s, range_sigma_m=0.03, azimuth_sigma_deg=0.3)
+        for s in sensors
+    )
+    ds = simulate(noisy, boards, rng=3).dataset
+    problem = build_pairwise(ds, _truth_poses(simulate(noisy, boards, rng=3)), "lidar1", all_pairs(ds))
+    sol = solve(problem)
+    problem = problem.with_poses(sol.poses)
+    units = detection_units(ds)
+    r, J = linearise(problem)[:2]
+    theta = estimate_theta(r, group_design(noise_map(problem, ds, units), units), r.size / (r.size - J.shape[1]))
+    est = theta_by_sensor(units, theta)
+    # the lidar's share of a lidar-camera pair is small: it is told apart, not measured finely
+    lidar = np.sqrt(np.mean([est["lidar1"][c] ** 2 for c in "xyz"]))
+    assert lidar < 0.01
+    for cam in ("camera1", "camera2"):
+        assert est[cam]["lateral"] == pytest.approx(0.02, rel=0.25)
+    assert est["radar1"]["range"] == pytest.approx(0.03, rel=0.35)
+
+
+def test_estimate_theta_is_exact_on_expected_squares():
+    M = np.array([[1.0, 0.0], [0.0, 2.0], [1.0, 1.0], [3.0, 0.5]])
+    theta = np.array([4e-4, 1e-4])
+    r = np.sqrt(M @ theta)
+    np.testing.assert_allclose(estimate_theta(r, M, 1.0), theta, rtol=1e-6)
+    # a group no residual depends on keeps the floor
+    M0 = np.hstack([M, np.zeros((4, 1))])
+    assert estimate_theta(r, M0, 1.0)[2] == pytest.approx(1e-10)

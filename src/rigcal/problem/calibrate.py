@@ -545,10 +545,11 @@ def _honest_covariance(
     problem = fit.problem.with_poses(sol.poses)
     r_w, J_w, _, _, layout = linearise(problem)
     sigma = np.concatenate([b.sigma.ravel() for b in problem.observations]) if problem.observations else np.zeros(0)
-    D = noise_map(problem, dataset, units)
-    M = group_design(D, units)
     m, n = J_w.shape
-    theta = estimate_theta(r_w * sigma, M, m / max(m - n, 1))
+    Dw = scipy.sparse.diags(1.0 / sigma) @ noise_map(problem, dataset, units)
+    # the fitted parameters absorb n of the m residual degrees of freedom (a row-by-row
+    # account, (I - H) D, was tried: near-collinear groups then collapse to the floor)
+    theta = estimate_theta(r_w, group_design(Dw, units), m / max(m - n, 1))
     bounded: dict[str, dict[str, tuple[float, float]]] = {}
     b_cols: list[int] = []
     spread: dict[str, np.ndarray] = {}
@@ -563,7 +564,6 @@ def _honest_covariance(
         bounded[s.name] = {d: intervals[d] for d in dirs}
         b_cols += list(dirs.values())
         spread[s.name] = _profile_spread(problem, s.name, vertices)
-    Dw = scipy.sparse.diags(1.0 / sigma) @ D
     # Gaussian part with the bounded directions held at the estimate, plus the spread of the
     # radar's pose over the bounded set (nonlinear: each extreme re-solved)
     free = np.setdiff1d(np.arange(n), b_cols)

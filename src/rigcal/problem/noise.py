@@ -220,14 +220,18 @@ def noise_map(problem, dataset: Dataset, units: DetectionUnits) -> scipy.sparse.
     return scipy.sparse.csr_matrix((vals, (rows, cols)), shape=(row0, units.size))
 
 
-def group_design(D: scipy.sparse.csr_matrix, units: DetectionUnits) -> np.ndarray:
-    """(rows, groups): ``sum_u D_iu^2 scale_u^2`` per group - the rows' variance per unit theta."""
-    D2 = D.multiply(D).multiply(units.scale[None, :] ** 2).tocsc()
+def group_design(D, units: DetectionUnits) -> np.ndarray:
+    """(rows, groups): ``sum_u D_iu^2 scale_u^2`` per group - the rows' variance per unit theta
+    (``D`` sparse or dense)."""
+    w = units.scale**2
     onehot = scipy.sparse.csr_matrix(
-        (np.ones(units.size), (np.arange(units.size), units.group)),
-        shape=(units.size, len(units.groups)),
+        (np.ones(units.size), (units.group, np.arange(units.size))),
+        shape=(len(units.groups), units.size),
     )
-    return np.asarray((D2 @ onehot).todense())
+    if scipy.sparse.issparse(D):
+        D2 = scipy.sparse.csr_matrix(D.multiply(D).multiply(w[None, :]))
+        return np.asarray((onehot @ D2.T).T.todense())
+    return np.asarray(onehot @ (np.asarray(D) ** 2 * w[None, :]).T).T
 
 
 def estimate_theta(

@@ -53,6 +53,12 @@ def test_absolute_writes_body_frame_calibration_close_to_truth(inputs, capsys):
         assert np.linalg.norm(T[:3, 3] - truth[name][:3, 3]) < 0.02, name
     text = capsys.readouterr().out
     assert "T_body_sensor" in text and "wheelbase" in text
+    import yaml
+
+    data = yaml.safe_load((out / "absolute.yaml").read_text())
+    assert data["verdict"]["status"] == "consistent" and text.lstrip().startswith("consistent")
+    radar2d = [n for n, s in data["sensors"].items() if s["kind"] == "radar"]
+    assert radar2d and all(set(data["sensors"][n]["bounded"]) == {"roll", "pitch", "z"} for n in radar2d)
 
 
 def test_labels_missing_a_wheel_is_one_line_and_writes_nothing(inputs, capsys):

@@ -491,6 +491,7 @@ def _assemble(
             relative_covariance=est.covariance,
             body_covariance=share,
             held=est.held,
+            bounded=est.bounded,
         )
     log.info(
         "absolute calibration: body frame wheelbase %.3f m, tracks %.3f / %.3f m, ground rms "

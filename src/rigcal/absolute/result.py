@@ -93,7 +93,9 @@ class BodySensorEstimate:
     * ``body_covariance``: the body frame's uncertainty mapped to the sensor,
       ``Ad(T_sensor_body) @ C_body @ Ad(T_sensor_body).T`` (zero when the body frame is exact);
     * ``std``: of x, y, z [m] and roll, pitch, yaw [deg] of ``T_body_sensor`` (first order);
-    * ``held``: degrees of freedom the relative calibration held at their prior.
+    * ``held``: degrees of freedom the relative calibration held at their prior;
+    * ``bounded``: directions only the field of view bounds (a 2D radar's roll, pitch, z about /
+      along its own axes: offsets from the estimate, deg / m), as in the relative calibration.
     """
 
     name: str
@@ -105,6 +107,7 @@ class BodySensorEstimate:
     relative_covariance: np.ndarray
     body_covariance: np.ndarray
     held: tuple[str, ...] = ()
+    bounded: Mapping[str, tuple[float, float]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         for name in ("T_body_sensor", "covariance", "relative_covariance", "body_covariance"):
@@ -222,11 +225,13 @@ class AbsoluteResult:
                 "std": {k: float(est.std[k]) for k in STD_KEYS},
                 "covariance": _matrix(est.covariance),
                 "held": list(est.held),
+                "bounded": {d: [float(lo), float(hi)] for d, (lo, hi) in est.bounded.items()},
             }
             for name, est in self.sensors.items()
         }
         return {
             "convention": CONVENTION,
+            "verdict": self.relative.verdict.to_dict() if self.relative.verdict is not None else None,
             "body_frame": body,
             "sensors": sensors,
             "relative": self.relative.to_dict(),

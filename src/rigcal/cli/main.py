@@ -133,6 +133,10 @@ def _parser() -> argparse.ArgumentParser:
     )
     a.add_argument("--out", required=True, metavar="DIR")
     a.add_argument("--json", action="store_true", help="print absolute.json on stdout")
+    a.add_argument(
+        "--force", action="store_true",
+        help="write the result even when the relative calibration's consistency check flags it (exit code stays 3)",
+    )
 
     m = sub.add_parser(
         "mocap",
@@ -459,6 +463,13 @@ def _cmd_absolute(args, console) -> int:
         label_sigma_m=None if args.label_sigma_mm is None else args.label_sigma_mm / 1000.0,
     )
     ground = {name: ground_normal_angle(pts, result.T_body_sensor(name)) for name, pts in checks}
+    _verdict_lines(result.relative, console)
+    if result.relative.flagged and not args.force:
+        console.print(
+            f"[bold red]not written[/bold red]: the relative calibration failed its consistency "
+            f"check (exit code {EXIT_FLAGGED}); --force writes it anyway, with the verdict"
+        )
+        return EXIT_FLAGGED
     write_absolute(result, args.out)
     if args.json:
         sys.stdout.write(absolute_to_json_text(result) + "\n")
@@ -477,7 +488,7 @@ def _cmd_absolute(args, console) -> int:
     for w in result.warnings:
         console.print(f"[yellow]warning:[/yellow] {w}")
     console.print(f"written to {args.out}/ (absolute.yaml, absolute.json, launch files)")
-    return 0
+    return EXIT_FLAGGED if result.relative.flagged else 0
 
 
 def _cmd_mocap(args, console) -> int:

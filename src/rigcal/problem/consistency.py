@@ -16,6 +16,7 @@ Checks (each ``pass``, ``note`` or ``fail``; any ``fail`` flags the result):
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Mapping
 
@@ -64,6 +65,7 @@ class Verdict:
         }
 
 
+@functools.lru_cache(maxsize=4096)
 def _limit(dof: int, tests: int) -> float:
     """Reduced chi-square above which ``dof`` rows fail, ``tests`` such tests made."""
     q = scipy.stats.chi2.isf(ALPHA / max(tests, 1), max(dof, 1)) / max(dof, 1)

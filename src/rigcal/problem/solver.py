@@ -17,6 +17,7 @@ from typing import Mapping
 
 import numpy as np
 import scipy.linalg
+import scipy.optimize
 import scipy.sparse
 import scipy.sparse.linalg
 
@@ -479,64 +480,88 @@ def _normal(J, r):
     return J.T @ J, J.T @ r
 
 
-def _constrained_step(M, g, c, G, active_tol=1e-9, max_rounds=60):
-    """argmin 0.5 d'Md + g'd  s.t.  c + G d <= 0 (small active-set QP, solved through one
-    factorisation of M and the Schur complement of the active constraints).
-
-    Returns (d, active mask, multipliers)."""
+def _factor(M):
+    """A solver ``b -> M^-1 b`` for the (damped, positive definite) step matrix."""
     if scipy.sparse.issparse(M):
-        lu = scipy.sparse.linalg.splu(M.tocsc())
-        solve_m = lu.solve
-    else:
-        try:
-            cf = scipy.linalg.cho_factor(M, check_finite=False)
-            solve_m = lambda b: scipy.linalg.cho_solve(cf, b, check_finite=False)  # noqa: E731
-        except np.linalg.LinAlgError:
-            pinv = np.linalg.pinv(M)
-            solve_m = lambda b: pinv @ b  # noqa: E731
-    d0 = -solve_m(g)
-    if c.size == 0:
-        return d0, np.zeros(0, dtype=bool), np.zeros(0)
-    cache: dict[int, np.ndarray] = {}
+        return scipy.sparse.linalg.splu(M.tocsc()).solve
+    try:
+        cf = scipy.linalg.cho_factor(M, check_finite=False)
+        return lambda b: scipy.linalg.cho_solve(cf, b, check_finite=False)
+    except np.linalg.LinAlgError:
+        pinv = np.linalg.pinv(M)
+        return lambda b: pinv @ b
 
-    def migt(idx):  # M^-1 G_i' for the active constraints only, computed once each
-        missing = [i for i in idx if i not in cache]
-        if missing:
-            cols = np.atleast_2d(solve_m(G[missing].T).T)
-            for i, col in zip(missing, cols):
-                cache[i] = col
-        return np.stack([cache[i] for i in idx], axis=1)
 
-    active = c >= -active_tol
-    seen = set()
-    d, nu = d0, np.zeros(0)
-    for _ in range(max_rounds):
-        idx = np.flatnonzero(active)
-        if idx.size:
-            Mi = migt(list(idx))
-            S = G[idx] @ Mi
-            nu = np.linalg.lstsq(S, c[idx] + G[idx] @ d0, rcond=None)[0]
-            d = d0 - Mi @ nu
+class _StepQP:
+    """The step subproblem ``argmin 0.5 d'Md + g'd  s.t.  c + G d <= 0`` for one M and g,
+    reusable for several right-hand sides c (the step and its second-order correction).
+
+    Solved exactly through its dual, ``min_{nu >= 0} 0.5 nu'S nu - nu'(c + G d0)`` with
+    ``S = G M^-1 G'`` and ``d0 = -M^-1 g``: a least-distance problem (Lawson & Hanson, ch. 23)
+    reduced to one non-negative least-squares problem, which terminates finitely and cannot
+    cycle on degenerate or redundant constraints. Infeasible linearisations are relaxed.
+    """
+
+    def __init__(self, M, g, G):
+        solve_m = _factor(M)
+        self.d0 = -np.asarray(solve_m(g)).ravel()
+        self.G = G
+        if G.shape[0]:
+            MiGt = np.asarray(solve_m(G.T)).reshape(G.shape[1], G.shape[0])
+            S = G @ MiGt
+            s = 1.0 / np.sqrt(np.maximum(np.diag(S), 1e-300))  # rows scaled to unit dual norm
+            self.scale = s
+            self.MiGt = MiGt * s[None, :]
+            Ss = 0.5 * (S + S.T) * np.outer(s, s)
+            w, V = np.linalg.eigh(Ss)
+            self.E = V * np.sqrt(np.maximum(w, 0.0))[None, :]  # E E' = S (scaled)
+            self.S = Ss
+
+    def solve(self, c):
+        """(d, multipliers >= 0) of the QP with constraint values ``c``."""
+        m = c.size
+        if m == 0:
+            return self.d0, np.zeros(0)
+        f = (c + self.G @ self.d0) * self.scale  # violation of the unconstrained step
+        if np.all(f <= 0.0):
+            return self.d0, np.zeros(m)
+        shift = 0.0
+        for _ in range(30):
+            ff = f - shift
+            A = np.vstack([self.E.T, ff[None, :]])
+            b = np.zeros(m + 1)
+            b[-1] = 1.0
+            u, _ = scipy.optimize.nnls(A, b, maxiter=50 * (m + 1))
+            denom = 1.0 - float(ff @ u)
+            if denom > 1e-10:
+                nu = u / denom
+                nu = self._polish(nu, ff)
+                break
+            # the linearised constraints admit no step: relax them, ever more
+            shift = max(2.0 * shift, 1e-6 * (1.0 + float(np.max(np.abs(f)))))
         else:
-            d, nu = d0, np.zeros(0)
-        key = tuple(idx)
-        if key in seen:
-            break
-        seen.add(key)
-        if nu.size and nu.min() < -1e-12 * max(1.0, float(np.abs(nu).max())):
-            active[idx[int(np.argmin(nu))]] = False
-            continue
-        slack = c + G @ d
-        slack[active] = -np.inf
-        worst = int(np.argmax(slack))
-        if slack[worst] > 1e-12:
-            active[worst] = True
-            continue
-        break
-    mult = np.zeros(c.size)
-    if nu.size == int(active.sum()):
-        mult[active] = np.maximum(nu, 0.0)
-    return d, active, mult
+            nu = np.zeros(m)
+        d = self.d0 - self.MiGt @ nu
+        return d, nu * self.scale
+
+    def _polish(self, nu, f):
+        """Solve the equality system on the support of nu exactly, if that stays optimal."""
+        P = np.flatnonzero(nu > 1e-14 * max(1.0, float(nu.max())))
+        if P.size == 0:
+            return nu
+        sol = np.linalg.lstsq(self.S[np.ix_(P, P)], f[P], rcond=1e-13)[0]
+        if np.all(sol > 0.0):
+            out = np.zeros_like(nu)
+            out[P] = sol
+            slack = self.S @ out - f  # = -(c + G d) scaled: must be >= 0
+            if float(np.min(slack)) >= -1e-12 * max(1.0, float(np.max(np.abs(f)))):
+                return out
+        return nu
+
+def _constrained_step(M, g, c, G):
+    """argmin 0.5 d'Md + g'd  s.t.  c + G d <= 0. Returns (d, active mask, multipliers)."""
+    d, mult = _StepQP(M, g, G).solve(c)
+    return d, mult > 0.0, mult
 
 
 def _leverage(J: np.ndarray, C: np.ndarray, row_cols: np.ndarray) -> np.ndarray:
@@ -610,6 +635,15 @@ def _damped(A, lam):
     return A + np.diag(lam * np.maximum(d, 1e-12 * dmax) + 1e-300)
 
 
+def _try_step(problem, layout, T, delta, loss, loss_scale, merit, rho):
+    """Evaluate a trial step: (merit, T, r, J, cost, c, G, capped delta, capped?)."""
+    delta, capped = _cap_step(delta, layout)
+    T_new = _retract(T, layout, delta)
+    r_new, J_new, cost_new, _ = _evaluate(problem, layout, T_new, loss, loss_scale, True)
+    c_new, G_new = _constraints(problem, layout, T_new)
+    return merit(cost_new, c_new, rho), T_new, r_new, J_new, cost_new, c_new, G_new, delta, capped
+
+
 def _lm(problem, layout, T, loss, loss_scale, max_iterations, ftol, xtol, gtol, fov_tol, step_sigma, warm=None):
     """Levenberg-Marquardt with linearised field-of-view constraints (an active-set QP per
     step, l1 merit function, gain-ratio damping). Returns (T, iterations, converged, status,
@@ -630,7 +664,7 @@ def _lm(problem, layout, T, loss, loss_scale, max_iterations, ftol, xtol, gtol, 
     warm = warm or {}
     lam = warm.get("lam", 1e-4)
     nu_grow = 2.0
-    rho = 1.0
+    rho = 0.0
     active = np.zeros(c.size, dtype=bool)
     mult = np.zeros(c.size)
     # secant estimate of the residual curvature sum r_i Hess(r_i) that Gauss-Newton drops
@@ -642,6 +676,7 @@ def _lm(problem, layout, T, loss, loss_scale, max_iterations, ftol, xtol, gtol, 
     linz = {}
     it = 0
     resets = 0
+    restarts = 0
     for it in range(1, max_iterations + 1):
         linz.update(r=r, J=J, A=A, g=g, c=c, G=G, cost=cost)
         # Hessian of the Lagrangian: Gauss-Newton part, secant correction, active constraints
@@ -657,19 +692,28 @@ def _lm(problem, layout, T, loss, loss_scale, max_iterations, ftol, xtol, gtol, 
             if gnorm <= gtol * max(1.0, cost):
                 state.update(lam=lam, secant=Ssec)
                 return T, it - 1, True, "gradient below tolerance", active, state, linz
-        if c.size:
-            # penalty weight above the gradient's pull on the constraints
-            rho = max(rho, 10.0 * float(np.linalg.norm(g)) / max(1e-12, float(np.min(np.linalg.norm(G, axis=1)))))
-        m_old = merit(cost, c, rho)
         accepted = False
         while lam < 1e16:
-            delta, act, mult_new = _constrained_step(_damped(AL, lam), g, c, G)
-            delta, capped = _cap_step(delta, layout)
+            qp = _StepQP(_damped(AL, lam), g, G)
+            delta, mult_new = qp.solve(c)
+            act = mult_new > 0.0
+            # exact l1 penalty: the weight must exceed every multiplier of the step
+            if c.size:
+                rho = max(rho, 2.0 * float(np.max(mult_new, initial=0.0)))
+            m_old = merit(cost, c, rho)
+            tried = _try_step(problem, layout, T, delta, loss, loss_scale, merit, rho)
+            if c.size and not tried[0] < m_old and np.any(mult_new > 0.0):
+                # Maratos effect: the step's curvature along the binding limits violated them;
+                # a second-order correction (the same QP at the limits' values after the step)
+                # pulls it back onto them
+                c_soc = tried[5] - G @ tried[7]
+                soc, mult_soc = qp.solve(c_soc)
+                tried_soc = _try_step(problem, layout, T, soc, loss, loss_scale, merit, rho)
+                if tried_soc[0] < tried[0]:
+                    tried, mult_new = tried_soc, mult_soc
+                    act = mult_new > 0.0
+            m_new, T_new, r_new, J_new, cost_new, c_new, G_new, delta, capped = tried
             step = float(np.linalg.norm(delta))
-            T_new = _retract(T, layout, delta)
-            r_new, J_new, cost_new, _ = _evaluate(problem, layout, T_new, loss, loss_scale, True)
-            c_new, G_new = _constraints(problem, layout, T_new)
-            m_new = merit(cost_new, c_new, rho)
             Ad = A @ delta
             predicted = -(g @ delta + 0.5 * delta @ Ad)
             if c.size:
@@ -712,6 +756,14 @@ def _lm(problem, layout, T, loss, loss_scale, max_iterations, ftol, xtol, gtol, 
             maha0 = float(np.sqrt(max(d_newton @ (A @ d_newton), 0.0) / sigma0_sq))
             if maha0 <= 10.0 * step_sigma or 2.0 * cost / dof <= 1e-20:
                 return T, it, True, "no further decrease possible (at a minimum)", active, state, linz
+            if restarts < 2:
+                # restart from here with fresh state (damping, penalty, curvature, multipliers)
+                restarts += 1
+                lam, nu_grow, rho, resets = 1e-4, 2.0, 0.0, 0
+                mult = np.zeros(c.size)
+                if Ssec is not None:
+                    Ssec = np.zeros_like(Ssec)
+                continue
             return (
                 T, it, False,
                 f"stalled: no decrease possible although the Newton step is {maha0:.3g} sigma",

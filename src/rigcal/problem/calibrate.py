@@ -37,6 +37,10 @@ log = logging.getLogger(__name__)
 ROBUST_SCALE_M = 0.05
 #: PSE noise floor [m]: no sensor is assumed better than this
 NOISE_FLOOR_M = 1e-4
+#: PSE: least summed redundancy of a sensor axis whose noise is estimated (else it is held)
+MIN_REDUNDANCY = 0.5
+#: PSE: noise updates after one Gauss-Newton step each before every update gets a full solve
+ONE_STEP_NOISE_ITERATIONS = 30
 
 
 @dataclass(frozen=True)
@@ -118,18 +122,53 @@ def _fit(
     prob = build_pse(dataset, poses, boards, reference, sigmas, options.hold_radar_plane)
     layout = prepare(prob)
 
+    held: dict[str, np.ndarray] = {}  # per sensor: axes whose noise the data cannot estimate
+
     def vce(problem: Problem, sol: Solution) -> tuple[dict[str, np.ndarray], float]:
         # variance component estimation: sigma^2 = sum(residual^2) / sum(redundancy) per sensor
-        # axis; unlike the plain mean square it does not collapse when board poses absorb noise
-        new = {}
+        # axis; unlike the plain mean square it does not collapse when board poses absorb noise.
+        # An axis with (almost) no redundancy has no residual to estimate from: it is held.
+        sq: dict[str, np.ndarray] = {}
+        red_sum: dict[str, np.ndarray] = {}
         for batch, r, red in zip(problem.observations, sol.residuals, sol.redundancy):
             metric = r * batch.sigma  # back to metres
-            var = np.sum(metric**2, axis=0) / np.maximum(np.sum(red, axis=0), 1e-9)
-            new[batch.sensor] = np.maximum(np.sqrt(var), NOISE_FLOOR_M)
+            sq[batch.sensor] = sq.get(batch.sensor, 0.0) + np.sum(metric**2, axis=0)
+            red_sum[batch.sensor] = red_sum.get(batch.sensor, 0.0) + np.sum(red, axis=0)
+        new = {}
+        for name, total in sq.items():
+            free = red_sum[name] >= MIN_REDUNDANCY
+            var = total / np.maximum(red_sum[name], 1e-9)
+            new[name] = np.where(free, np.maximum(np.sqrt(var), NOISE_FLOOR_M), sigmas[name])
+            held[name] = ~free
         change = max(float(np.max(np.abs(new[s] / sigmas[s] - 1.0))) for s in new)
         return new, change
 
+    def damped(new: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarray], bool]:
+        # the fixed point iteration on log sigma oscillates when a sensor has little redundancy
+        # (a contraction ratio near -1): halve the step of a component each time its update
+        # changes sign, let it grow back while the updates keep their direction. Returns the
+        # damped noise and whether it is pinned: every update flips and the damped steps are
+        # negligible - the noise sits where the update jumps (an elevation limit switching
+        # between binding and free changes the residuals and redundancy discontinuously)
+        out, moved, pinned = {}, 0.0, True
+        for name, v in new.items():
+            step = np.log(v) - np.log(sigmas[name])
+            w = weight.setdefault(name, np.ones_like(step))
+            last = last_step.get(name)
+            if last is not None:
+                flip = step * last < 0.0
+                w[:] = np.where(flip, 0.5 * w, np.minimum(1.0, 1.5 * w))
+            last_step[name] = step
+            big = np.abs(step) >= options.noise_tolerance
+            pinned = pinned and bool(np.all(w[big] <= 1.0 / 64.0))
+            moved = max(moved, float(np.max(np.abs(w * step))))
+            out[name] = np.maximum(sigmas[name] * np.exp(w * step), NOISE_FLOOR_M)
+        return out, pinned and moved < 0.1 * options.noise_tolerance
+
+    weight: dict[str, np.ndarray] = {}
+    last_step: dict[str, np.ndarray] = {}
     converged_noise = False
+    pinned = False
     it = 0
     # first a full solve with identity noise (the paper's starting point) so the poses are
     # converged before the one-step noise updates begin
@@ -138,28 +177,38 @@ def _fit(
         raise ConvergenceError(f"PSE did not converge: {sol.status}")
     history: list[dict[str, np.ndarray]] = []
     for it in range(1, options.max_noise_iterations + 1):
+        # one Gauss-Newton step per noise update; if that has not settled after a while (little
+        # redundancy: the poses still move with the weights), converge the poses every time
+        # so the noise update is a fixed-point map of the noise alone
+        full = it > ONE_STEP_NOISE_ITERATIONS
         sol = solve(
-            prob, want_redundancy=True, max_iterations=1, layout=layout,
-            warm=sol.extra.get("lm_state"),
-            start=sol.poses,
+            prob, want_redundancy=True, max_iterations=200 if full else 1,
+            layout=layout, warm=sol.extra.get("lm_state"), start=sol.poses,
         )
+        if full and not sol.converged:
+            raise ConvergenceError(f"PSE did not converge: {sol.status}")
         new, change = vce(prob, sol)
+        new, pinned = damped(new)
+        if change < options.noise_tolerance or pinned:
+            if not full:  # the poses had one step only: converge them, then check again
+                sol = solve(prob, want_redundancy=True, layout=layout, start=sol.poses)
+                if not sol.converged:
+                    break
+                new, change = vce(prob, sol)
+                new, pinned = damped(new)
+            if change < options.noise_tolerance or pinned:
+                converged_noise = True
+                break
+            history = []
         history.append({k: np.log(v) for k, v in new.items()})
-        if len(history) == 3 and change >= options.noise_tolerance:
-            new = _aitken(history, new)
+        if len(history) == 3:
+            # extrapolate only components that converge monotonically (never damped): across
+            # a jump of the update, extrapolation throws the iterate out
+            extra = _aitken(history, new)
+            new = {k: np.where(weight[k] >= 1.0, extra[k], v) for k, v in new.items()}
             history = []
         sigmas.update(new)
         prob = prob.with_sigmas(sigmas)
-        if change < options.noise_tolerance:
-            sol = solve(prob, want_redundancy=True, layout=layout, start=sol.poses)
-            if not sol.converged:
-                break
-            new, change = vce(prob, sol)
-            if change < options.noise_tolerance:
-                converged_noise = True
-                break
-            sigmas.update(new)
-            prob = prob.with_sigmas(sigmas)
     if not converged_noise:
         if sol is not None and sol.status != "iteration limit reached" and not sol.converged:
             raise ConvergenceError(f"PSE did not converge: {sol.status}")
@@ -167,6 +216,16 @@ def _fit(
             f"PSE: the per-sensor noise estimates did not converge in {options.max_noise_iterations} "
             "iterations; try mode fcpe, or check the detections for outliers"
         )
+    notes = [
+        f"{name}: noise of axis {', '.join(str(i) for i in np.flatnonzero(h))} held at "
+        f"{', '.join(f'{sigmas[name][i]:.4g}' for i in np.flatnonzero(h))} m - its detections have "
+        "no redundancy (nothing else measures what they measure), so the noise cannot be estimated"
+        for name, h in held.items()
+        if np.any(h)
+    ]
+    if notes:
+        log.info("PSE: %s", "; ".join(notes))
+        sol = replace(sol, extra={**sol.extra, "notes": tuple(notes)})
     prob = prob.with_poses(sol.poses)
     poses = {s: sol.poses[s] for s in dataset.names}
     boards = {k: sol.poses[board_block(k)] for k in boards}

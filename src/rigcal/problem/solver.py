@@ -230,7 +230,8 @@ class Solution:
     dof: int
     gradient_norm: float
     rank_deficient: bool = False
-    #: per observation batch, (n, d) redundancy numbers 1 - h_ii (leverage) of each residual
+    #: per observation batch, (n, d) redundancy numbers 1 - h_ii (leverage) of each residual,
+    #: from the covariance without the field-of-view limits
     redundancy: tuple[np.ndarray, ...] = ()
     extra: dict = field(default_factory=dict)
 
@@ -857,6 +858,7 @@ def solve(
         cov = scipy.linalg.cho_solve(cf, np.eye(n), check_finite=False)
         if not np.all(np.isfinite(cov)):
             raise np.linalg.LinAlgError
+        cov_free = cov
         if binding.size:
             # covariance on the manifold of binding constraints (Schur form of Z (Z'AZ)^-1 Z')
             Gb = G[binding]
@@ -871,9 +873,12 @@ def solve(
             cov = Z @ np.linalg.pinv(Z.T @ A_dense @ Z, rcond=1e-12) @ Z.T
         else:
             cov = np.linalg.pinv(A_dense, rcond=1e-12)
-    # redundancy numbers: 1 - diag(J C J') in the whitened space (unscaled covariance)
+        cov_free = np.linalg.pinv(A_dense, rcond=1e-12) if want_redundancy and binding.size else cov
+    # redundancy numbers: 1 - diag(J C J') in the whitened space (unscaled covariance). C ignores
+    # the field-of-view limits: an inequality that happens to bind must not make the redundancy
+    # (and with it the variance components estimated from it) jump as the weights change
     Jd = J.toarray() if scipy.sparse.issparse(J) else J
-    lev = _leverage(Jd, cov, layout.row_cols) if want_redundancy else np.zeros(J.shape[0])
+    lev = _leverage(Jd, cov_free, layout.row_cols) if want_redundancy else np.zeros(J.shape[0])
     redundancy = []
     off = 0
     for x in raw:

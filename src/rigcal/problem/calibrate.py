@@ -24,6 +24,7 @@ from rigcal.problem.configurations import (
     pairs_for_mode,
 )
 from rigcal.problem.evaluate import anchor_errors, evaluate_pairs
+from rigcal.problem.fixedpoint import Anderson
 from rigcal.problem.initialise import default_reference, initial_poses
 from rigcal.problem.outliers import OutlierRule, find_outliers
 from rigcal.problem.pairs import all_pairs, pair_data
@@ -37,7 +38,8 @@ log = logging.getLogger(__name__)
 ROBUST_SCALE_M = 0.05
 #: PSE noise floor [m]: no sensor is assumed better than this
 NOISE_FLOOR_M = 1e-4
-#: PSE: least summed redundancy of a sensor axis whose noise is estimated (else it is held)
+#: PSE: pseudo-redundancy of the current noise value in each update; an axis with less summed
+#: redundancy than this is reported as held (its noise is not estimable)
 MIN_REDUNDANCY = 0.5
 #: PSE: noise updates after one Gauss-Newton step each before every update gets a full solve
 ONE_STEP_NOISE_ITERATIONS = 30
@@ -136,10 +138,13 @@ def _fit(
             red_sum[batch.sensor] = red_sum.get(batch.sensor, 0.0) + np.sum(red, axis=0)
         new = {}
         for name, total in sq.items():
-            free = red_sum[name] >= MIN_REDUNDANCY
-            var = total / np.maximum(red_sum[name], 1e-9)
-            new[name] = np.where(free, np.maximum(np.sqrt(var), NOISE_FLOOR_M), sigmas[name])
-            held[name] = ~free
+            # the current value counts as MIN_REDUNDANCY pseudo-observations: the same fixed
+            # point (var = sum r^2 / redundancy), but an axis without redundancy (both ~0)
+            # keeps its value instead of collapsing to the floor - continuously, no switch
+            red = red_sum[name]
+            var = (total + MIN_REDUNDANCY * sigmas[name] ** 2) / (red + MIN_REDUNDANCY)
+            new[name] = np.maximum(np.sqrt(var), NOISE_FLOOR_M)
+            held[name] = red < MIN_REDUNDANCY
         change = max(float(np.max(np.abs(new[s] / sigmas[s] - 1.0))) for s in new)
         return new, change
 
@@ -165,6 +170,8 @@ def _fit(
             out[name] = np.maximum(sigmas[name] * np.exp(w * step), NOISE_FLOOR_M)
         return out, pinned and moved < 0.1 * options.noise_tolerance
 
+    anderson = Anderson()
+    notes: list[str] = []
     weight: dict[str, np.ndarray] = {}
     last_step: dict[str, np.ndarray] = {}
     converged_noise = False
@@ -188,6 +195,38 @@ def _fit(
         if full and not sol.converged:
             raise ConvergenceError(f"PSE did not converge: {sol.status}")
         new, change = vce(prob, sol)
+        if full:
+            # a fixed-point map of the noise alone now: Anderson-accelerate it
+            if change < options.noise_tolerance:
+                converged_noise = True
+                break
+            names = sorted(new)
+            x = np.concatenate([np.log(sigmas[k]) for k in names])
+            x_new = anderson.step(x, np.concatenate([np.log(new[k]) for k in names]) - x)
+            stuck = anderson.stuck(0.1 * options.noise_tolerance)
+            if stuck:
+                x_new = anderson.best
+            off = 0
+            for k in names:
+                n = sigmas[k].size
+                sigmas[k] = np.maximum(np.exp(x_new[off : off + n]), NOISE_FLOOR_M)
+                off += n
+            prob = prob.with_sigmas(sigmas)
+            if stuck:
+                sol = solve(prob, want_redundancy=True, layout=layout, start=sol.poses)
+                if not sol.converged:
+                    raise ConvergenceError(f"PSE did not converge: {sol.status}")
+                new, change = vce(prob, sol)
+                jumps = {k: np.abs(np.log(new[k] / sigmas[k])) > options.noise_tolerance for k in names}
+                unsettled = ", ".join(k for k in names if np.any(jumps[k]))
+                notes.append(
+                    f"PSE noise of {unsettled} is not unique: the noise update jumps there "
+                    "(too little redundancy - a field-of-view limit switches between binding and "
+                    "free as the weights change); the estimate at the jump is used"
+                )
+                converged_noise = True
+                break
+            continue
         new, pinned = damped(new)
         if change < options.noise_tolerance or pinned:
             if not full:  # the poses had one step only: converge them, then check again
@@ -216,8 +255,8 @@ def _fit(
             f"PSE: the per-sensor noise estimates did not converge in {options.max_noise_iterations} "
             "iterations; try mode fcpe, or check the detections for outliers"
         )
-    notes = [
-        f"{name}: noise of axis {', '.join(str(i) for i in np.flatnonzero(h))} held at "
+    notes += [
+        f"{name}: noise of axis {', '.join(str(i) for i in np.flatnonzero(h))} kept at "
         f"{', '.join(f'{sigmas[name][i]:.4g}' for i in np.flatnonzero(h))} m - its detections have "
         "no redundancy (nothing else measures what they measure), so the noise cannot be estimated"
         for name, h in held.items()

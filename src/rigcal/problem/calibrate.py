@@ -25,6 +25,7 @@ from rigcal.problem.configurations import (
 )
 from rigcal.problem.evaluate import anchor_errors, evaluate_pairs
 from rigcal.problem.fixedpoint import Anderson
+from rigcal.problem.globalise import solve_global
 from rigcal.problem.initialise import default_reference, initial_poses
 from rigcal.problem.outliers import OutlierRule, find_outliers
 from rigcal.problem.pairs import all_pairs, pair_data
@@ -103,7 +104,7 @@ def _fit(
 ) -> _Fit:
     if mode == "fcpe":
         prob = build_pairwise(dataset, poses0, reference, all_pairs(dataset), options.hold_radar_plane)
-        sol = solve(prob)
+        sol = solve_global(prob)
         return _Fit(dict(sol.poses), prob, sol, {}, 0, {})
     if mode == "mcpe":
         # each sensor against the reference: independent pairwise problems (paper eq. 6)
@@ -113,7 +114,7 @@ def _fit(
             prob = build_pairwise(dataset, poses0, reference, [pair], options.hold_radar_plane)
             prob = replace(prob, poses=tuple(p for p in prob.poses if p.name in (reference, other)))
             probs.append(prob)
-            sols.append(solve(prob))
+            sols.append(solve_global(prob))
         prob, sol = merge_independent(probs, sols)
         return _Fit(dict(sol.poses), prob, sol, {}, 0, {})
     # PSE with iterated diagonal noise: one Gauss-Newton step, then a variance-component update,
@@ -179,7 +180,7 @@ def _fit(
     it = 0
     # first a full solve with identity noise (the paper's starting point) so the poses are
     # converged before the one-step noise updates begin
-    sol = solve(prob, layout=layout)
+    sol = solve_global(prob, layout=layout)
     if not sol.converged:
         raise ConvergenceError(f"PSE did not converge: {sol.status}")
     history: list[dict[str, np.ndarray]] = []

@@ -504,11 +504,16 @@ class _StepQP:
     """
 
     def __init__(self, M, g, G):
-        solve_m = _factor(M)
-        self.d0 = -np.asarray(solve_m(g)).ravel()
+        self._solve_m = _factor(M)
+        self.d0 = -np.asarray(self._solve_m(g)).ravel()
         self.G = G
-        if G.shape[0]:
-            MiGt = np.asarray(solve_m(G.T)).reshape(G.shape[1], G.shape[0])
+        self.E = None
+
+    def _dual(self):
+        """The dual's matrices, on the first call that needs them."""
+        if self.E is None:
+            G = self.G
+            MiGt = np.asarray(self._solve_m(G.T)).reshape(G.shape[1], G.shape[0])
             S = G @ MiGt
             s = 1.0 / np.sqrt(np.maximum(np.diag(S), 1e-300))  # rows scaled to unit dual norm
             self.scale = s
@@ -523,9 +528,11 @@ class _StepQP:
         m = c.size
         if m == 0:
             return self.d0, np.zeros(0)
-        f = (c + self.G @ self.d0) * self.scale  # violation of the unconstrained step
+        f = c + self.G @ self.d0  # violation of the unconstrained step
         if np.all(f <= 0.0):
             return self.d0, np.zeros(m)
+        self._dual()
+        f = f * self.scale
         shift = 0.0
         for _ in range(30):
             ff = f - shift

@@ -27,6 +27,7 @@ from rigcal.problem.evaluate import anchor_errors, evaluate_pairs
 from rigcal.problem.fixedpoint import Anderson
 from rigcal.problem.globalise import solve_global
 from rigcal.problem.initialise import default_reference, initial_poses
+from rigcal.problem.observability import check_observable
 from rigcal.problem.outliers import OutlierRule, find_outliers
 from rigcal.problem.pairs import all_pairs, pair_data
 from rigcal.problem.result import CalibrationResult, SensorEstimate
@@ -102,6 +103,8 @@ def _fit(
     poses0: Mapping[str, np.ndarray],
     options: CalibrationOptions,
 ) -> _Fit:
+    # refuse, saying what is missing, when the boards cannot determine the poses
+    check_observable(dataset, mode, reference, options.hold_radar_plane)
     if mode == "fcpe":
         prob = build_pairwise(dataset, poses0, reference, all_pairs(dataset), options.hold_radar_plane)
         sol = solve_global(prob)

@@ -723,7 +723,10 @@ def _lm(problem, layout, T, loss, loss_scale, max_iterations, ftol, xtol, gtol, 
             m_new, T_new, r_new, J_new, cost_new, c_new, G_new, delta, capped = tried
             step = float(np.linalg.norm(delta))
             Ad = A @ delta
-            predicted = -(g @ delta + 0.5 * delta @ Ad)
+            # decrease predicted by the model the step minimised (Gauss-Newton, secant and
+            # constraint curvature): with the Gauss-Newton part alone a secant-shaped step can
+            # look uphill and end the trials before any damping is tried
+            predicted = -(g @ delta + 0.5 * delta @ (AL @ delta))
             if c.size:
                 lin = c + G @ delta
                 predicted += rho * float(np.sum(np.maximum(c, 0)) - np.sum(np.maximum(lin, 0)))
@@ -743,6 +746,7 @@ def _lm(problem, layout, T, loss, loss_scale, max_iterations, ftol, xtol, gtol, 
                 gain = (m_old - m_new) / predicted if predicted > 0 else 0.0
                 lam = min(max(lam * max(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3), 1e-12), 1e12)
                 nu_grow = 2.0
+                resets = 0
                 break
             if (predicted <= ftol * max(cost, 1e-300) or step <= xtol) and feasible:
                 break

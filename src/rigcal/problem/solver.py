@@ -652,6 +652,35 @@ def _try_step(problem, layout, T, delta, loss, loss_scale, merit, rho):
     return merit(cost_new, c_new, rho), T_new, r_new, J_new, cost_new, c_new, G_new, delta, capped
 
 
+def _model_hessian(problem, layout, T, A, mult, Ssec):
+    """The step model's Hessian: Gauss-Newton A, plus the constraint curvature sum mult_i
+    Hess(c_i) and the secant estimate of the residual curvature where they keep it positive
+    definite (the step QP is solved through its convex dual; an indefinite model would give
+    an unbounded step). Sparse problems (no secant) get A alone."""
+    if scipy.sparse.issparse(A):
+        return A
+    parts = []
+    if mult is not None and np.any(mult > 0):
+        parts.append(_constraint_hessian(problem, layout, T, mult))
+    if Ssec is not None and np.any(Ssec):
+        parts.append(Ssec)
+    for k in range(len(parts), 0, -1):  # all extras, then fewer
+        M = A + sum(parts[:k])
+        try:
+            np.linalg.cholesky(M)
+            return M
+        except np.linalg.LinAlgError:
+            continue
+    return A
+
+
+def _newton_sigma(A, g, c, G, cost, dof) -> float:
+    """Length of the undamped constrained Gauss-Newton step in units of its standard deviation
+    (Mahalanobis, covariance A^-1 scaled by the variance factor): ~0 at a KKT point."""
+    d, _, _ = _constrained_step(_damped(A, 1e-12), g, c, G)
+    return float(np.sqrt(max(float(d @ (A @ d)), 0.0) / max(2.0 * cost / dof, 1e-300)))
+
+
 def _lm(problem, layout, T, loss, loss_scale, max_iterations, ftol, xtol, gtol, fov_tol, step_sigma, warm=None):
     """Levenberg-Marquardt with linearised field-of-view constraints (an active-set QP per
     step, l1 merit function, gain-ratio damping). Returns (T, iterations, converged, status,
@@ -688,12 +717,7 @@ def _lm(problem, layout, T, loss, loss_scale, max_iterations, ftol, xtol, gtol, 
     for it in range(1, max_iterations + 1):
         linz.update(r=r, J=J, A=A, g=g, c=c, G=G, cost=cost)
         # Hessian of the Lagrangian: Gauss-Newton part, secant correction, active constraints
-        Hc = _constraint_hessian(problem, layout, T, mult) if c.size else None
-        AL = A if Hc is None or not np.any(Hc) else (
-            (A + scipy.sparse.csr_matrix(Hc)) if scipy.sparse.issparse(A) else A + Hc
-        )
-        if Ssec is not None and np.any(Ssec):
-            AL = AL + Ssec
+        AL = _model_hessian(problem, layout, T, A, mult if c.size else None, Ssec)
         feasible = c.size == 0 or float(np.max(c)) <= fov_tol
         if c.size == 0:
             gnorm = float(np.max(np.abs(g))) if g.size else 0.0
@@ -763,10 +787,14 @@ def _lm(problem, layout, T, loss, loss_scale, max_iterations, ftol, xtol, gtol, 
             if not feasible:
                 return T, it, False, "cannot satisfy the field-of-view constraints", active, state, linz
             # no decrease possible: a minimum only if the undamped step is negligible
-            d_newton, _, _ = _constrained_step(_damped(A, 1e-12), g, c, G)
-            sigma0_sq = max(2.0 * cost / dof, 1e-300)
-            maha0 = float(np.sqrt(max(d_newton @ (A @ d_newton), 0.0) / sigma0_sq))
-            if maha0 <= 10.0 * step_sigma or 2.0 * cost / dof <= 1e-20:
+            maha0 = _newton_sigma(A, g, c, G, cost, dof)
+            # (or when the decrease that step promises, maha0^2 sigma0^2 / 2, is below the
+            # cost's rounding: no merit comparison can resolve it)
+            if (
+                maha0 <= 10.0 * step_sigma
+                or 2.0 * cost / dof <= 1e-20
+                or maha0**2 * cost / dof <= ftol * cost
+            ):
                 return T, it, True, "no further decrease possible (at a minimum)", active, state, linz
             if restarts < 2:
                 # restart from here with fresh state (damping, penalty, curvature, multipliers)
@@ -800,12 +828,19 @@ def _lm(problem, layout, T, loss, loss_scale, max_iterations, ftol, xtol, gtol, 
         state.update(lam=lam, secant=Ssec)
         linz.update(r=r, J=J, A=A, g=g, c=c, G=G, cost=cost)
         feasible = c.size == 0 or float(np.max(c)) <= fov_tol
-        if feasible and rel <= ftol:
-            return T, it, True, "relative cost change below tolerance", active, state, linz
         if feasible and maha <= step_sigma and 2.0 * cost / dof > 1e-20:
             return T, it, True, f"step below {step_sigma:g} sigma", active, state, linz
-        if feasible and step <= xtol * (1.0 + float(np.linalg.norm(T[:, :3, 3]))):
-            return T, it, True, "step below tolerance", active, state, linz
+        small = (
+            "relative cost change below tolerance" if rel <= ftol
+            else "step below tolerance" if step <= xtol * (1.0 + float(np.linalg.norm(T[:, :3, 3])))
+            else None
+        )
+        if feasible and small:
+            # a small change may only mean heavy damping: stop only if the undamped
+            # (constrained Newton) step from here is statistically negligible too
+            if _newton_sigma(A, g, c, G, cost, dof) <= 10.0 * step_sigma or 2.0 * cost / dof <= 1e-20:
+                return T, it, True, small, active, state, linz
+            lam = min(lam, 1e-4)
     linz.update(r=r, J=J, A=A, g=g, c=c, G=G, cost=cost)
     return T, it, False, "iteration limit reached", active, state, linz
 

@@ -7,7 +7,6 @@ import dataclasses
 
 import numpy as np
 import pytest
-import scipy.optimize
 
 from rigcal.geometry.se3 import from_rt, invert, se3_exp
 from rigcal.geometry.so3 import matrix_from_rpy, so3_log
@@ -21,18 +20,8 @@ from rigcal.problem.residuals import (
     elevation_limit_residuals,
     observation_residuals,
 )
-from rigcal.problem.solver import (
-    ALL_FREE,
-    ElevationLimits,
-    Observations,
-    PoseBlock,
-    Problem,
-    _constraints,
-    _evaluate,
-    _retract,
-    prepare,
-    solve,
-)
+from rigcal.problem.solver import ALL_FREE, ElevationLimits, Observations, PoseBlock, Problem, solve
+from rigcal.problem.verify import kkt_violations, reference_solve
 from rigcal.sensors.radar import elevation, project_2d
 
 HELD = (False,) * 6
@@ -300,66 +289,6 @@ def _radar_problem(max_el_deg: float, seed: int = 0, start_scale: float = 0.2) -
     return dataclasses.replace(p, limits=(lim,))
 
 
-def _at(problem: Problem, poses) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
-    """cost, gradient (free local DOFs), constraint values c (<= 0 feasible) and dc/dx."""
-    layout = prepare(problem)
-    T = np.stack([np.asarray(poses[p.name]) for p in problem.poses])
-    r, J, cost, _ = _evaluate(problem, layout, T, "linear", 1.0, True)
-    c, G = _constraints(problem, layout, T)
-    return cost, J.T @ r, c, G
-
-
-def _kkt_violations(problem: Problem, poses, active_tol: float = 1e-7) -> dict[str, float]:
-    """How far ``poses`` are from a KKT point of min cost s.t. c <= 0. Multipliers lambda >= 0
-    of the limits within ``active_tol`` of binding come from non-negative least squares on the
-    stationarity of the Lagrangian; the others are zero. Returns the relative stationarity
-    residual |g + G'lambda| / |g|, the largest complementarity product lambda_i |c_i|, the
-    largest violation max(c, 0), |g| and lambda."""
-    _, g, c, G = _at(problem, poses)
-    near = c > -active_tol
-    lam = np.zeros(c.size)
-    if np.any(near):
-        lam[near] = scipy.optimize.nnls(G[near].T, -g, maxiter=1000)[0]
-    return {
-        "stationarity": float(np.linalg.norm(g + G.T @ lam)) / max(float(np.linalg.norm(g)), 1e-300),
-        "complementarity": float(np.max(lam * np.abs(c), initial=0.0)),
-        "violation": float(np.max(c, initial=0.0)),
-        "gradient": float(np.linalg.norm(g)),
-        "multipliers": lam,
-    }
-
-
-def _slsqp(problem: Problem, start=None) -> tuple[float, dict[str, np.ndarray]]:
-    """An independent optimiser on the same cost and limits: scipy SLSQP over a tangent vector
-    (T = T0 exp(xi) for every free pose, held DOFs fixed), central-difference gradients."""
-    layout = prepare(problem)
-    T0 = np.stack([np.asarray((start or {}).get(p.name, p.T), dtype=float) for p in problem.poses])
-
-    def cost(x):
-        return _evaluate(problem, layout, _retract(T0, layout, x), "linear", 1.0, False)[2]
-
-    def cons(x):
-        return -_constraints(problem, layout, _retract(T0, layout, x), want_jac=False)[0]
-
-    def central(f, h=1e-6):
-        def jac(x):
-            cols = []
-            for j in range(x.size):
-                e = np.zeros_like(x)
-                e[j] = h
-                cols.append((np.asarray(f(x + e)) - np.asarray(f(x - e))) / (2 * h))
-            return np.stack(cols, axis=-1)
-        return jac
-
-    res = scipy.optimize.minimize(
-        cost, np.zeros(layout.n_free), jac=central(cost), method="SLSQP",
-        constraints=[{"type": "ineq", "fun": cons, "jac": central(cons)}] if problem.limits else [],
-        options={"ftol": 1e-16, "maxiter": 1000},
-    )
-    T = _retract(T0, layout, res.x)
-    return float(res.fun), {p.name: T[i] for i, p in enumerate(problem.poses)}
-
-
 #: a step tolerance far below the statistical default, for checks of the optimum itself
 TIGHT = 1e-9
 
@@ -369,14 +298,14 @@ def test_constrained_solution_satisfies_kkt_conditions(seed):
     problem = _radar_problem(6.0, seed)
     sol = solve(problem, step_sigma=TIGHT)
     assert sol.converged, sol.status
-    k = _kkt_violations(problem, sol.poses)
+    k = kkt_violations(problem, sol.poses)
     # the limits really bind: a clearly non-zero gradient held by positive multipliers
     assert k["gradient"] > 1e-3 and np.sum(k["multipliers"] > 1e-6) >= 1
     assert k["stationarity"] < 1e-6, k
     assert k["complementarity"] < 1e-9, k
     assert k["violation"] <= problem.fov_tolerance_rad
     # the same checks reject a feasible point that is not optimal: one step from the start
-    assert _kkt_violations(problem, solve(problem, max_iterations=1).poses)["stationarity"] > 1e-3
+    assert kkt_violations(problem, solve(problem, max_iterations=1).poses)["stationarity"] > 1e-3
 
 
 @pytest.mark.parametrize("seed", [0, 2])
@@ -384,7 +313,7 @@ def test_constrained_solution_matches_scipy_slsqp(seed):
     problem = _radar_problem(6.0, seed)
     sol = solve(problem, step_sigma=TIGHT)
     assert sol.converged, sol.status
-    cost, poses = _slsqp(problem)
+    cost, poses = reference_solve(problem)[:2]
     assert sol.cost == pytest.approx(cost, rel=1e-7)
     dt, dr = _pose_error(sol.poses["b"], poses["b"])
     assert dt < 2e-5 and dr < 5e-6

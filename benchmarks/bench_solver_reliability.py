@@ -5,7 +5,8 @@ calibrated with default options; prints failures/draws, the median calibrate() C
 refusal messages. If casadi is importable, the same FCPE problems (same subsets, same Kabsch
 start, no outlier screening) are also solved with IPOPT on a casadi formulation (rotation by a
 Cayley vector, the elevation limits as two-sided smooth constraints), next to our solver from
-the same start: failures, median solve CPU time (IPOPT: solve only; building the casadi function is shown apart), and how the costs compare.
+the same start: failures, median solve CPU time (IPOPT: solve only; building the casadi
+function is shown apart), and how the costs compare.
 
 Usage: python benchmarks/bench_solver_reliability.py [--draws 200] [--K 3,4,6,10,20]
            [--modes mcpe,fcpe,pse] [--ipopt-draws 50]

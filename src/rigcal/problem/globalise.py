@@ -52,7 +52,8 @@ def alternative_starts(
     radars = tilting_radars(problem)
     if not radars:
         return []
-    base = {p.name: (np.asarray(start[p.name]) if start and p.name in start else p.T) for p in problem.poses}
+    start = start or {}
+    base = {p.name: np.asarray(start.get(p.name, p.T)) for p in problem.poses}
     mirrored, small = dict(found), []
     for name in radars:
         T = _mirrored(base[name], found[name])

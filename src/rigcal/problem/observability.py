@@ -56,7 +56,9 @@ def _verdict(
     n = len(by_board)
     partners = " or ".join(shared or candidates)
     if kind == SensorKind.RADAR:
-        rule = "a 2D radar needs " + ("2 distinct boards with its plane held" if hold_plane else "3 boards not on one line")
+        rule = "a 2D radar needs " + (
+            "2 distinct boards with its plane held" if hold_plane else "3 boards not on one line"
+        )
     elif kind == SensorKind.RADAR3D:
         rule = "a 3D radar needs 3 boards not on one line"
     else:
@@ -64,7 +66,8 @@ def _verdict(
     if n < need:
         detail = ", ".join(f"{shared[t].num_boards} with {t}" for t in shared)
         only = "no boards" if n == 0 else f"only {n} board{'s' if n > 1 else ''}"
-        return f"{name} shares {only} with {partners}" + (f" ({detail})" if len(shared) > 1 else "") + f"; {rule}"
+        detail = f" ({detail})" if len(shared) > 1 else ""
+        return f"{name} shares {only} with {partners}{detail}; {rule}"
     pts = np.stack([np.mean(v, axis=0) for v in by_board.values()])
     first, second = _spread(pts)
     if need == 2 and first < COLLINEAR_M:

@@ -566,6 +566,7 @@ class _StepQP:
                 return out
         return nu
 
+
 def _constrained_step(M, g, c, G):
     """argmin 0.5 d'Md + g'd  s.t.  c + G d <= 0. Returns (d, active mask, multipliers)."""
     d, mult = _StepQP(M, g, G).solve(c)
@@ -682,9 +683,16 @@ def _newton_sigma(A, g, c, G, cost, dof) -> float:
 
 
 def _lm(problem, layout, T, loss, loss_scale, max_iterations, ftol, xtol, gtol, fov_tol, step_sigma, warm=None):
-    """Levenberg-Marquardt with linearised field-of-view constraints (an active-set QP per
-    step, l1 merit function, gain-ratio damping). Returns (T, iterations, converged, status,
-    active mask).
+    """Levenberg-Marquardt with linearised field-of-view constraints: per trial step a convex
+    QP (solved exactly through its dual, :class:`_StepQP`), an exact l1 merit function whose
+    weight exceeds the QP multipliers, a second-order correction when the merit rejects a step
+    that the limits' curvature spoilt (Maratos effect), gain-ratio damping, and a restart with
+    fresh state from a stall. Returns (T, iterations, converged, status, active mask, LM state,
+    last linearisation).
+
+    A small cost change or step ends the iterations only if the undamped constrained
+    Gauss-Newton step from there is negligible too (so heavy damping is not taken for
+    convergence).
 
     Besides the usual tolerances it stops when a step is statistically negligible: its
     Mahalanobis length under the current covariance estimate is below ``step_sigma``.

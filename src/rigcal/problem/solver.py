@@ -675,6 +675,25 @@ def _model_hessian(problem, layout, T, A, mult, Ssec):
     return A
 
 
+def _weakest(A, layout: _Layout) -> str:
+    """Why a solve may not finish: the least determined direction of the normal matrix, named
+    by its pose and degrees of freedom, with the condition number."""
+    A = A.toarray() if scipy.sparse.issparse(A) else np.asarray(A)
+    if A.shape[0] == 0 or A.shape[0] > SPARSE_ABOVE:
+        return ""
+    w, V = np.linalg.eigh(A)
+    if w[-1] <= 0:
+        return ""
+    v = np.abs(V[:, 0])
+    k = int(np.argmax(v))
+    i = int(np.argwhere(layout.cols == k)[0][0])
+    dofs = [DOF_NAMES[j] for j in range(6) if layout.cols[i, j] >= 0 and v[layout.cols[i, j]] > 0.3 * v[k]]
+    return (
+        f"; the least determined direction is {layout.names[i]} {'/'.join(dofs)} (condition number "
+        f"{w[-1] / max(w[0], 1e-300):.2g}): the boards barely fix it"
+    )
+
+
 def _newton_sigma(A, g, c, G, cost, dof) -> float:
     """Length of the undamped constrained Gauss-Newton step in units of its standard deviation
     (Mahalanobis, covariance A^-1 scaled by the variance factor): ~0 at a KKT point."""
@@ -887,6 +906,8 @@ def solve(
         problem, layout, T, loss, loss_scale, max_iterations, ftol, xtol, gtol,
         problem.fov_tolerance_rad, step_sigma, warm,
     )
+    if not converged and max_iterations > 1 and "A" in lin:
+        status += _weakest(lin["A"], layout)
     if loss == "linear" and "J" in lin:
         # the last linearisation of the iterations is at the returned poses
         raw = _evaluate(problem, layout, T, loss, loss_scale, False)[3]

@@ -132,3 +132,13 @@ def test_mcpe_needs_boards_shared_with_the_reference(real_dataset):
     with pytest.raises(GeometryError, match=r"camera1 shares no boards with lidar1"):
         calibrate(sub, CalibrationOptions(mode="mcpe", detect_outliers=False))
     assert calibrate(sub, CalibrationOptions(mode="fcpe", detect_outliers=False)).converged
+
+
+def test_pse_keeps_and_reports_a_noise_without_redundancy(real_dataset):
+    """On these 4 boards the radar's range axis has (almost) no redundancy: its variance
+    component would collapse to the floor; it is kept at its value instead, and said so."""
+    sub = real_dataset.select_boards([0, 11, 18, 21])
+    fit = _fit(sub, "pse", "lidar1", initial_poses(sub, "lidar1", robust=True), CalibrationOptions(mode="pse"))
+    notes = fit.solution.extra.get("notes", ())
+    assert any(n.startswith("radar1: noise of axis 0 kept at") for n in notes), notes
+    assert fit.noise["radar1"][0] > 10 * 1e-4  # not at the floor

@@ -20,7 +20,8 @@ from rigcal.problem.residuals import (
     elevation_limit_residuals,
     observation_residuals,
 )
-from rigcal.problem.solver import ALL_FREE, Observations, PoseBlock, Problem, solve
+from rigcal.problem.solver import ALL_FREE, ElevationLimits, Observations, PoseBlock, Problem, solve
+from rigcal.problem.verify import kkt_violations, reference_solve
 from rigcal.sensors.radar import elevation, project_2d
 
 HELD = (False,) * 6
@@ -269,3 +270,77 @@ def test_surface_jacobian_with_closest_points_found_at_every_evaluation(block):
     J = JA if block == "A" else JB
     fd = _central_differences(lambda A, B: f(A, B)[0], TA, TB, block)
     np.testing.assert_allclose(J, fd, rtol=1e-5, atol=1e-5 * float(np.max(np.abs(J))))
+
+
+# --------------------------------------------------------------------------- constrained optima
+
+
+def _radar_problem(max_el_deg: float, seed: int = 0, start_scale: float = 0.2) -> Problem:
+    """A held sensor ``a`` and a 2D radar ``b`` that sees 16 points 3-8 m ahead at up to ~11 deg
+    elevation, with the field of view cut to +-max_el_deg: noise-free data pull the radar to
+    its true tilt, the limits hold it back, so several limits bind at the optimum."""
+    start = T_TRUE @ se3_exp(start_scale * PERTURBATION)
+    p = _tiny_problem(MODEL_RADAR2D, start, seed=seed)
+    obs = p.observations[0]
+    lim = ElevationLimits(
+        label="a-b", frame=obs.frame, observer=obs.observer, points=obs.points,
+        max_elevation_rad=np.full(obs.size, np.radians(max_el_deg)), board=obs.board,
+    )
+    return dataclasses.replace(p, limits=(lim,))
+
+
+#: a step tolerance far below the statistical default, for checks of the optimum itself
+TIGHT = 1e-9
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_constrained_solution_satisfies_kkt_conditions(seed):
+    problem = _radar_problem(6.0, seed)
+    sol = solve(problem, step_sigma=TIGHT)
+    assert sol.converged, sol.status
+    k = kkt_violations(problem, sol.poses)
+    # the limits really bind: a clearly non-zero gradient held by positive multipliers
+    assert k["gradient"] > 1e-3 and np.sum(k["multipliers"] > 1e-6) >= 1
+    assert k["stationarity"] < 1e-6, k
+    assert k["complementarity"] < 1e-9, k
+    assert k["violation"] <= problem.fov_tolerance_rad
+    # the same checks reject a feasible point that is not optimal: one step from the start
+    assert kkt_violations(problem, solve(problem, max_iterations=1).poses)["stationarity"] > 1e-3
+
+
+@pytest.mark.parametrize("seed", [0, 2])
+def test_constrained_solution_matches_scipy_slsqp(seed):
+    problem = _radar_problem(6.0, seed)
+    sol = solve(problem, step_sigma=TIGHT)
+    assert sol.converged, sol.status
+    cost, poses = reference_solve(problem)[:2]
+    assert sol.cost == pytest.approx(cost, rel=1e-7)
+    dt, dr = _pose_error(sol.poses["b"], poses["b"])
+    assert dt < 2e-5 and dr < 5e-6
+    # without the limits the optimum is elsewhere (the comparison is not trivially met)
+    free = solve(dataclasses.replace(problem, limits=()))
+    assert free.cost < 0.5 * sol.cost
+
+
+def test_step_qp_handles_redundant_and_degenerate_limits():
+    """The step subproblem min 0.5 d'Md + g'd s.t. c + G d <= 0 with duplicated rows (FCPE has
+    each reflector twice, once through each 3D sensor) and a limit that binds with a zero
+    multiplier: the KKT conditions of the QP hold."""
+    from rigcal.problem.solver import _constrained_step
+
+    rng = np.random.default_rng(3)
+    n = 6
+    B = rng.normal(size=(n, n))
+    M = B @ B.T + 0.1 * np.eye(n)
+    g = rng.normal(size=n)
+    G0 = rng.normal(size=(3, n))
+    G = np.vstack([G0, G0, G0[:1] * 2.0])  # duplicated and scaled rows
+    d_free = -np.linalg.solve(M, g)
+    c = -0.5 * (G @ d_free)  # every row is violated by the unconstrained step
+    d, active, mult = _constrained_step(M, g, c, G)
+    slack = c + G @ d
+    assert np.all(slack <= 1e-10)  # feasible
+    assert np.all(mult >= 0.0)
+    np.testing.assert_allclose(M @ d + g + G.T @ mult, 0.0, atol=1e-9)  # stationary
+    assert np.max(np.abs(mult * slack)) < 1e-10  # complementary
+    assert np.linalg.norm(d - d_free) > 1e-3  # the constraints did change the step

@@ -28,7 +28,10 @@ from rigcal.problem.configurations import (
     pairs_for_mode,
 )
 from rigcal.problem.evaluate import anchor_errors, evaluate_pairs
+from rigcal.problem.fixedpoint import Anderson
+from rigcal.problem.globalise import solve_global
 from rigcal.problem.initialise import default_reference, initial_poses
+from rigcal.problem.observability import check_observable
 from rigcal.problem.outliers import OutlierRule, find_outliers
 from rigcal.problem.pairs import all_pairs, pair_data
 from rigcal.problem.result import CalibrationResult, SensorEstimate
@@ -68,6 +71,11 @@ ROBUST_SCALE_M = 0.05
 PSE_NOISE = ("iterated", "identity")
 #: PSE noise floor [m]: no sensor is assumed better than this
 NOISE_FLOOR_M = 1e-4
+#: PSE: pseudo-redundancy of the current noise value in each update; an axis with less summed
+#: redundancy than this is reported as held (its noise is not estimable)
+MIN_REDUNDANCY = 0.5
+#: PSE: noise updates after one Gauss-Newton step each before every update gets a full solve
+ONE_STEP_NOISE_ITERATIONS = 30
 
 
 @dataclass(frozen=True)
@@ -133,9 +141,11 @@ def _fit(
     poses0: Mapping[str, np.ndarray],
     options: CalibrationOptions,
 ) -> _Fit:
+    # refuse, saying what is missing, when the boards cannot determine the poses
+    check_observable(dataset, mode, reference, options.hold_radar_plane)
     if mode == "fcpe":
         prob = build_pairwise(dataset, poses0, reference, all_pairs(dataset), options.hold_radar_plane)
-        sol = solve(prob)
+        sol = solve_global(prob)
         return _Fit(dict(sol.poses), prob, sol, {}, 0, {})
     if mode == "mcpe":
         # each sensor against the reference: independent pairwise problems (paper eq. 6)
@@ -145,7 +155,7 @@ def _fit(
             prob = build_pairwise(dataset, poses0, reference, [pair], options.hold_radar_plane)
             prob = replace(prob, poses=tuple(p for p in prob.poses if p.name in (reference, other)))
             probs.append(prob)
-            sols.append(solve(prob))
+            sols.append(solve_global(prob))
         prob, sol = merge_independent(probs, sols)
         return _Fit(dict(sol.poses), prob, sol, {}, 0, {})
     # PSE with iterated diagonal noise: one Gauss-Newton step, then a variance-component update,
@@ -156,22 +166,62 @@ def _fit(
     prob = build_pse(dataset, poses, boards, reference, sigmas, options.hold_radar_plane)
     layout = prepare(prob)
 
+    held: dict[str, np.ndarray] = {}  # per sensor: axes whose noise the data cannot estimate
+
     def vce(problem: Problem, sol: Solution) -> tuple[dict[str, np.ndarray], float]:
         # variance component estimation: sigma^2 = sum(residual^2) / sum(redundancy) per sensor
-        # axis; unlike the plain mean square it does not collapse when board poses absorb noise
-        new = {}
+        # axis; unlike the plain mean square it does not collapse when board poses absorb noise.
+        # An axis with (almost) no redundancy has no residual to estimate from: it is held.
+        sq: dict[str, np.ndarray] = {}
+        red_sum: dict[str, np.ndarray] = {}
         for batch, r, red in zip(problem.observations, sol.residuals, sol.redundancy):
             metric = r * batch.sigma  # back to metres
-            var = np.sum(metric**2, axis=0) / np.maximum(np.sum(red, axis=0), 1e-9)
-            new[batch.sensor] = np.maximum(np.sqrt(var), NOISE_FLOOR_M)
+            sq[batch.sensor] = sq.get(batch.sensor, 0.0) + np.sum(metric**2, axis=0)
+            red_sum[batch.sensor] = red_sum.get(batch.sensor, 0.0) + np.sum(red, axis=0)
+        new = {}
+        for name, total in sq.items():
+            # the current value counts as MIN_REDUNDANCY pseudo-observations: the same fixed
+            # point (var = sum r^2 / redundancy), but an axis without redundancy (both ~0)
+            # keeps its value instead of collapsing to the floor - continuously, no switch
+            red = red_sum[name]
+            var = (total + MIN_REDUNDANCY * sigmas[name] ** 2) / (red + MIN_REDUNDANCY)
+            new[name] = np.maximum(np.sqrt(var), NOISE_FLOOR_M)
+            held[name] = red < MIN_REDUNDANCY
         change = max(float(np.max(np.abs(new[s] / sigmas[s] - 1.0))) for s in new)
         return new, change
 
+    def damped(new: dict[str, np.ndarray]) -> tuple[dict[str, np.ndarray], bool]:
+        # the fixed point iteration on log sigma oscillates when a sensor has little redundancy
+        # (a contraction ratio near -1): halve the step of a component each time its update
+        # changes sign, let it grow back while the updates keep their direction. Returns the
+        # damped noise and whether it is pinned: every update flips and the damped steps are
+        # negligible - the noise sits where the update jumps (an elevation limit switching
+        # between binding and free changes the residuals and redundancy discontinuously)
+        out, moved, pinned = {}, 0.0, True
+        for name, v in new.items():
+            step = np.log(v) - np.log(sigmas[name])
+            w = weight.setdefault(name, np.ones_like(step))
+            last = last_step.get(name)
+            if last is not None:
+                flip = step * last < 0.0
+                w[:] = np.where(flip, 0.5 * w, np.minimum(1.0, 1.5 * w))
+            last_step[name] = step
+            big = np.abs(step) >= options.noise_tolerance
+            pinned = pinned and bool(np.all(w[big] <= 1.0 / 64.0))
+            moved = max(moved, float(np.max(np.abs(w * step))))
+            out[name] = np.maximum(sigmas[name] * np.exp(w * step), NOISE_FLOOR_M)
+        return out, pinned and moved < 0.1 * options.noise_tolerance
+
+    anderson = Anderson()
+    notes: list[str] = []
+    weight: dict[str, np.ndarray] = {}
+    last_step: dict[str, np.ndarray] = {}
     converged_noise = False
+    pinned = False
     it = 0
     # first a full solve with identity noise (the paper's starting point) so the poses are
     # converged before the one-step noise updates begin
-    sol = solve(prob, layout=layout)
+    sol = solve_global(prob, layout=layout)
     if not sol.converged:
         raise ConvergenceError(f"PSE did not converge: {sol.status}")
     if options.pse_noise == "identity":
@@ -179,28 +229,70 @@ def _fit(
         return _Fit({s: sol.poses[s] for s in dataset.names}, prob.with_poses(sol.poses), sol, {}, 0, boards)
     history: list[dict[str, np.ndarray]] = []
     for it in range(1, options.max_noise_iterations + 1):
+        # one Gauss-Newton step per noise update; if that has not settled after a while (little
+        # redundancy: the poses still move with the weights), converge the poses every time
+        # so the noise update is a fixed-point map of the noise alone
+        full = it > ONE_STEP_NOISE_ITERATIONS
         sol = solve(
-            prob, want_redundancy=True, max_iterations=1, layout=layout,
-            warm=sol.extra.get("lm_state"),
-            start=sol.poses,
+            prob, want_redundancy=True, max_iterations=200 if full else 1,
+            layout=layout, warm=sol.extra.get("lm_state"), start=sol.poses,
         )
+        if full and not sol.converged:
+            raise ConvergenceError(f"PSE did not converge: {sol.status}")
         new, change = vce(prob, sol)
-        history.append({k: np.log(v) for k, v in new.items()})
-        if len(history) == 3 and change >= options.noise_tolerance:
-            new = _aitken(history, new)
-            history = []
-        sigmas.update(new)
-        prob = prob.with_sigmas(sigmas)
-        if change < options.noise_tolerance:
-            sol = solve(prob, want_redundancy=True, layout=layout, start=sol.poses)
-            if not sol.converged:
-                break
-            new, change = vce(prob, sol)
+        if full:
+            # a fixed-point map of the noise alone now: Anderson-accelerate it
             if change < options.noise_tolerance:
                 converged_noise = True
                 break
-            sigmas.update(new)
+            names = sorted(new)
+            x = np.concatenate([np.log(sigmas[k]) for k in names])
+            x_new = anderson.step(x, np.concatenate([np.log(new[k]) for k in names]) - x)
+            stuck = anderson.stuck(0.1 * options.noise_tolerance)
+            if stuck:
+                x_new = anderson.best
+            off = 0
+            for k in names:
+                n = sigmas[k].size
+                sigmas[k] = np.maximum(np.exp(x_new[off : off + n]), NOISE_FLOOR_M)
+                off += n
             prob = prob.with_sigmas(sigmas)
+            if stuck:
+                sol = solve(prob, want_redundancy=True, layout=layout, start=sol.poses)
+                if not sol.converged:
+                    raise ConvergenceError(f"PSE did not converge: {sol.status}")
+                new, change = vce(prob, sol)
+                jumps = {k: np.abs(np.log(new[k] / sigmas[k])) > options.noise_tolerance for k in names}
+                unsettled = ", ".join(k for k in names if np.any(jumps[k]))
+                notes.append(
+                    f"PSE noise of {unsettled} is not unique: the noise update jumps there "
+                    "(too little redundancy - a field-of-view limit switches between binding and "
+                    "free as the weights change); the estimate at the jump is used"
+                )
+                converged_noise = True
+                break
+            continue
+        new, pinned = damped(new)
+        if change < options.noise_tolerance or pinned:
+            if not full:  # the poses had one step only: converge them, then check again
+                sol = solve(prob, want_redundancy=True, layout=layout, start=sol.poses)
+                if not sol.converged:
+                    break
+                new, change = vce(prob, sol)
+                new, pinned = damped(new)
+            if change < options.noise_tolerance or pinned:
+                converged_noise = True
+                break
+            history = []
+        history.append({k: np.log(v) for k, v in new.items()})
+        if len(history) == 3:
+            # extrapolate only components that converge monotonically (never damped): across
+            # a jump of the update, extrapolation throws the iterate out
+            extra = _aitken(history, new)
+            new = {k: np.where(weight[k] >= 1.0, extra[k], v) for k, v in new.items()}
+            history = []
+        sigmas.update(new)
+        prob = prob.with_sigmas(sigmas)
     if not converged_noise:
         if sol is not None and sol.status != "iteration limit reached" and not sol.converged:
             raise ConvergenceError(f"PSE did not converge: {sol.status}")
@@ -208,6 +300,16 @@ def _fit(
             f"PSE: the per-sensor noise estimates did not converge in {options.max_noise_iterations} "
             "iterations; try mode fcpe, or check the detections for outliers"
         )
+    notes += [
+        f"{name}: noise of axis {', '.join(str(i) for i in np.flatnonzero(h))} kept at "
+        f"{', '.join(f'{sigmas[name][i]:.4g}' for i in np.flatnonzero(h))} m - its detections have "
+        "no redundancy (nothing else measures what they measure), so the noise cannot be estimated"
+        for name, h in held.items()
+        if np.any(h)
+    ]
+    if notes:
+        log.info("PSE: %s", "; ".join(notes))
+        sol = replace(sol, extra={**sol.extra, "notes": tuple(notes)})
     prob = prob.with_poses(sol.poses)
     poses = {s: sol.poses[s] for s in dataset.names}
     boards = {k: sol.poses[board_block(k)] for k in boards}

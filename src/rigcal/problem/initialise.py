@@ -14,6 +14,7 @@ from rigcal.dataset import Dataset, SensorKind
 from rigcal.errors import GeometryError, InputError
 from rigcal.geometry.align import kabsch, kabsch_batch
 from rigcal.geometry.se3 import invert
+from rigcal.problem.observability import check_observable
 from rigcal.problem.pairs import PairData, all_pairs, pair_data
 from rigcal.problem.residuals import MODEL_RADAR2D
 from rigcal.sensors.radar import project_2d
@@ -158,8 +159,13 @@ def initial_poses(
             break
     missing = [s for s in dataset.names if s not in poses]
     if missing:
+        why = ""
+        try:
+            check_observable(dataset, "fcpe", reference)
+        except GeometryError as exc:
+            why = f" ({exc})"
         raise InputError(
             f"cannot relate sensor(s) {missing} to reference '{reference}': they share too few "
-            "valid boards with the other sensors (a 3D pair needs 1, a radar pair 3 non-collinear)"
+            f"valid boards with the other sensors (a 3D pair needs 1, a radar pair 3 non-collinear){why}"
         )
     return {name: poses[name] for name in dataset.names}

@@ -17,6 +17,7 @@ from typing import Mapping
 
 import numpy as np
 import scipy.linalg
+import scipy.optimize
 import scipy.sparse
 import scipy.sparse.linalg
 
@@ -229,7 +230,8 @@ class Solution:
     dof: int
     gradient_norm: float
     rank_deficient: bool = False
-    #: per observation batch, (n, d) redundancy numbers 1 - h_ii (leverage) of each residual
+    #: per observation batch, (n, d) redundancy numbers 1 - h_ii (leverage) of each residual,
+    #: from the covariance without the field-of-view limits
     redundancy: tuple[np.ndarray, ...] = ()
     extra: dict = field(default_factory=dict)
 
@@ -479,64 +481,96 @@ def _normal(J, r):
     return J.T @ J, J.T @ r
 
 
-def _constrained_step(M, g, c, G, active_tol=1e-9, max_rounds=60):
-    """argmin 0.5 d'Md + g'd  s.t.  c + G d <= 0 (small active-set QP, solved through one
-    factorisation of M and the Schur complement of the active constraints).
-
-    Returns (d, active mask, multipliers)."""
+def _factor(M):
+    """A solver ``b -> M^-1 b`` for the (damped, positive definite) step matrix."""
     if scipy.sparse.issparse(M):
-        lu = scipy.sparse.linalg.splu(M.tocsc())
-        solve_m = lu.solve
-    else:
-        try:
-            cf = scipy.linalg.cho_factor(M, check_finite=False)
-            solve_m = lambda b: scipy.linalg.cho_solve(cf, b, check_finite=False)  # noqa: E731
-        except np.linalg.LinAlgError:
-            pinv = np.linalg.pinv(M)
-            solve_m = lambda b: pinv @ b  # noqa: E731
-    d0 = -solve_m(g)
-    if c.size == 0:
-        return d0, np.zeros(0, dtype=bool), np.zeros(0)
-    cache: dict[int, np.ndarray] = {}
+        return scipy.sparse.linalg.splu(M.tocsc()).solve
+    try:
+        cf = scipy.linalg.cho_factor(M, check_finite=False)
+        return lambda b: scipy.linalg.cho_solve(cf, b, check_finite=False)
+    except np.linalg.LinAlgError:
+        pinv = np.linalg.pinv(M)
+        return lambda b: pinv @ b
 
-    def migt(idx):  # M^-1 G_i' for the active constraints only, computed once each
-        missing = [i for i in idx if i not in cache]
-        if missing:
-            cols = np.atleast_2d(solve_m(G[missing].T).T)
-            for i, col in zip(missing, cols):
-                cache[i] = col
-        return np.stack([cache[i] for i in idx], axis=1)
 
-    active = c >= -active_tol
-    seen = set()
-    d, nu = d0, np.zeros(0)
-    for _ in range(max_rounds):
-        idx = np.flatnonzero(active)
-        if idx.size:
-            Mi = migt(list(idx))
-            S = G[idx] @ Mi
-            nu = np.linalg.lstsq(S, c[idx] + G[idx] @ d0, rcond=None)[0]
-            d = d0 - Mi @ nu
+class _StepQP:
+    """The step subproblem ``argmin 0.5 d'Md + g'd  s.t.  c + G d <= 0`` for one M and g,
+    reusable for several right-hand sides c (the step and its second-order correction).
+
+    Solved exactly through its dual, ``min_{nu >= 0} 0.5 nu'S nu - nu'(c + G d0)`` with
+    ``S = G M^-1 G'`` and ``d0 = -M^-1 g``: a least-distance problem (Lawson & Hanson, ch. 23)
+    reduced to one non-negative least-squares problem, which terminates finitely and cannot
+    cycle on degenerate or redundant constraints. Infeasible linearisations are relaxed.
+    """
+
+    def __init__(self, M, g, G):
+        self._solve_m = _factor(M)
+        self.d0 = -np.asarray(self._solve_m(g)).ravel()
+        self.G = G
+        self.E = None
+
+    def _dual(self):
+        """The dual's matrices, on the first call that needs them."""
+        if self.E is None:
+            G = self.G
+            MiGt = np.asarray(self._solve_m(G.T)).reshape(G.shape[1], G.shape[0])
+            S = G @ MiGt
+            s = 1.0 / np.sqrt(np.maximum(np.diag(S), 1e-300))  # rows scaled to unit dual norm
+            self.scale = s
+            self.MiGt = MiGt * s[None, :]
+            Ss = 0.5 * (S + S.T) * np.outer(s, s)
+            w, V = np.linalg.eigh(Ss)
+            self.E = V * np.sqrt(np.maximum(w, 0.0))[None, :]  # E E' = S (scaled)
+            self.S = Ss
+
+    def solve(self, c):
+        """(d, multipliers >= 0) of the QP with constraint values ``c``."""
+        m = c.size
+        if m == 0:
+            return self.d0, np.zeros(0)
+        f = c + self.G @ self.d0  # violation of the unconstrained step
+        if np.all(f <= 0.0):
+            return self.d0, np.zeros(m)
+        self._dual()
+        f = f * self.scale
+        shift = 0.0
+        for _ in range(30):
+            ff = f - shift
+            A = np.vstack([self.E.T, ff[None, :]])
+            b = np.zeros(m + 1)
+            b[-1] = 1.0
+            u, _ = scipy.optimize.nnls(A, b, maxiter=50 * (m + 1))
+            denom = 1.0 - float(ff @ u)
+            if denom > 1e-10:
+                nu = u / denom
+                nu = self._polish(nu, ff)
+                break
+            # the linearised constraints admit no step: relax them, ever more
+            shift = max(2.0 * shift, 1e-6 * (1.0 + float(np.max(np.abs(f)))))
         else:
-            d, nu = d0, np.zeros(0)
-        key = tuple(idx)
-        if key in seen:
-            break
-        seen.add(key)
-        if nu.size and nu.min() < -1e-12 * max(1.0, float(np.abs(nu).max())):
-            active[idx[int(np.argmin(nu))]] = False
-            continue
-        slack = c + G @ d
-        slack[active] = -np.inf
-        worst = int(np.argmax(slack))
-        if slack[worst] > 1e-12:
-            active[worst] = True
-            continue
-        break
-    mult = np.zeros(c.size)
-    if nu.size == int(active.sum()):
-        mult[active] = np.maximum(nu, 0.0)
-    return d, active, mult
+            nu = np.zeros(m)
+        d = self.d0 - self.MiGt @ nu
+        return d, nu * self.scale
+
+    def _polish(self, nu, f):
+        """Solve the equality system on the support of nu exactly, if that stays optimal."""
+        P = np.flatnonzero(nu > 1e-14 * max(1.0, float(nu.max())))
+        if P.size == 0:
+            return nu
+        sol = np.linalg.lstsq(self.S[np.ix_(P, P)], f[P], rcond=1e-13)[0]
+        if np.all(sol > 0.0):
+            out = np.zeros_like(nu)
+            out[P] = sol
+            slack = self.S @ out - f  # = -(c + G d) scaled: must be >= 0
+            if float(np.min(slack)) >= -1e-12 * max(1.0, float(np.max(np.abs(f)))):
+                return out
+        return nu
+
+
+def _constrained_step(M, g, c, G):
+    """argmin 0.5 d'Md + g'd  s.t.  c + G d <= 0. Returns (d, active mask, multipliers)."""
+    d, mult = _StepQP(M, g, G).solve(c)
+    return d, mult > 0.0, mult
 
 
 def _leverage(J: np.ndarray, C: np.ndarray, row_cols: np.ndarray) -> np.ndarray:
@@ -610,10 +644,74 @@ def _damped(A, lam):
     return A + np.diag(lam * np.maximum(d, 1e-12 * dmax) + 1e-300)
 
 
+def _try_step(problem, layout, T, delta, loss, loss_scale, merit, rho):
+    """Evaluate a trial step: (merit, T, r, J, cost, c, G, capped delta, capped?)."""
+    delta, capped = _cap_step(delta, layout)
+    T_new = _retract(T, layout, delta)
+    r_new, J_new, cost_new, _ = _evaluate(problem, layout, T_new, loss, loss_scale, True)
+    c_new, G_new = _constraints(problem, layout, T_new)
+    return merit(cost_new, c_new, rho), T_new, r_new, J_new, cost_new, c_new, G_new, delta, capped
+
+
+def _model_hessian(problem, layout, T, A, mult, Ssec):
+    """The step model's Hessian: Gauss-Newton A, plus the constraint curvature sum mult_i
+    Hess(c_i) and the secant estimate of the residual curvature where they keep it positive
+    definite (the step QP is solved through its convex dual; an indefinite model would give
+    an unbounded step). Sparse problems (no secant) get A alone."""
+    if scipy.sparse.issparse(A):
+        return A
+    parts = []
+    if mult is not None and np.any(mult > 0):
+        parts.append(_constraint_hessian(problem, layout, T, mult))
+    if Ssec is not None and np.any(Ssec):
+        parts.append(Ssec)
+    for k in range(len(parts), 0, -1):  # all extras, then fewer
+        M = A + sum(parts[:k])
+        try:
+            np.linalg.cholesky(M)
+            return M
+        except np.linalg.LinAlgError:
+            continue
+    return A
+
+
+def _weakest(A, layout: _Layout) -> str:
+    """Why a solve may not finish: the least determined direction of the normal matrix, named
+    by its pose and degrees of freedom, with the condition number."""
+    A = A.toarray() if scipy.sparse.issparse(A) else np.asarray(A)
+    if A.shape[0] == 0 or A.shape[0] > SPARSE_ABOVE:
+        return ""
+    w, V = np.linalg.eigh(A)
+    if w[-1] <= 0:
+        return ""
+    v = np.abs(V[:, 0])
+    k = int(np.argmax(v))
+    i = int(np.argwhere(layout.cols == k)[0][0])
+    dofs = [DOF_NAMES[j] for j in range(6) if layout.cols[i, j] >= 0 and v[layout.cols[i, j]] > 0.3 * v[k]]
+    return (
+        f"; the least determined direction is {layout.names[i]} {'/'.join(dofs)} (condition number "
+        f"{w[-1] / max(w[0], 1e-300):.2g}): the boards barely fix it"
+    )
+
+
+def _newton_sigma(A, g, c, G, cost, dof) -> float:
+    """Length of the undamped constrained Gauss-Newton step in units of its standard deviation
+    (Mahalanobis, covariance A^-1 scaled by the variance factor): ~0 at a KKT point."""
+    d, _, _ = _constrained_step(_damped(A, 1e-12), g, c, G)
+    return float(np.sqrt(max(float(d @ (A @ d)), 0.0) / max(2.0 * cost / dof, 1e-300)))
+
+
 def _lm(problem, layout, T, loss, loss_scale, max_iterations, ftol, xtol, gtol, fov_tol, step_sigma, warm=None):
-    """Levenberg-Marquardt with linearised field-of-view constraints (an active-set QP per
-    step, l1 merit function, gain-ratio damping). Returns (T, iterations, converged, status,
-    active mask).
+    """Levenberg-Marquardt with linearised field-of-view constraints: per trial step a convex
+    QP (solved exactly through its dual, :class:`_StepQP`), an exact l1 merit function whose
+    weight exceeds the QP multipliers, a second-order correction when the merit rejects a step
+    that the limits' curvature spoilt (Maratos effect), gain-ratio damping, and a restart with
+    fresh state from a stall. Returns (T, iterations, converged, status, active mask, LM state,
+    last linearisation).
+
+    A small cost change or step ends the iterations only if the undamped constrained
+    Gauss-Newton step from there is negligible too (so heavy damping is not taken for
+    convergence).
 
     Besides the usual tolerances it stops when a step is statistically negligible: its
     Mahalanobis length under the current covariance estimate is below ``step_sigma``.
@@ -630,7 +728,7 @@ def _lm(problem, layout, T, loss, loss_scale, max_iterations, ftol, xtol, gtol, 
     warm = warm or {}
     lam = warm.get("lam", 1e-4)
     nu_grow = 2.0
-    rho = 1.0
+    rho = 0.0
     active = np.zeros(c.size, dtype=bool)
     mult = np.zeros(c.size)
     # secant estimate of the residual curvature sum r_i Hess(r_i) that Gauss-Newton drops
@@ -642,36 +740,44 @@ def _lm(problem, layout, T, loss, loss_scale, max_iterations, ftol, xtol, gtol, 
     linz = {}
     it = 0
     resets = 0
+    restarts = 0
     for it in range(1, max_iterations + 1):
         linz.update(r=r, J=J, A=A, g=g, c=c, G=G, cost=cost)
         # Hessian of the Lagrangian: Gauss-Newton part, secant correction, active constraints
-        Hc = _constraint_hessian(problem, layout, T, mult) if c.size else None
-        AL = A if Hc is None or not np.any(Hc) else (
-            (A + scipy.sparse.csr_matrix(Hc)) if scipy.sparse.issparse(A) else A + Hc
-        )
-        if Ssec is not None and np.any(Ssec):
-            AL = AL + Ssec
+        AL = _model_hessian(problem, layout, T, A, mult if c.size else None, Ssec)
         feasible = c.size == 0 or float(np.max(c)) <= fov_tol
         if c.size == 0:
             gnorm = float(np.max(np.abs(g))) if g.size else 0.0
             if gnorm <= gtol * max(1.0, cost):
                 state.update(lam=lam, secant=Ssec)
                 return T, it - 1, True, "gradient below tolerance", active, state, linz
-        if c.size:
-            # penalty weight above the gradient's pull on the constraints
-            rho = max(rho, 10.0 * float(np.linalg.norm(g)) / max(1e-12, float(np.min(np.linalg.norm(G, axis=1)))))
-        m_old = merit(cost, c, rho)
         accepted = False
         while lam < 1e16:
-            delta, act, mult_new = _constrained_step(_damped(AL, lam), g, c, G)
-            delta, capped = _cap_step(delta, layout)
+            qp = _StepQP(_damped(AL, lam), g, G)
+            delta, mult_new = qp.solve(c)
+            act = mult_new > 0.0
+            # exact l1 penalty: the weight must exceed every multiplier of the step
+            if c.size:
+                rho = max(rho, 2.0 * float(np.max(mult_new, initial=0.0)))
+            m_old = merit(cost, c, rho)
+            tried = _try_step(problem, layout, T, delta, loss, loss_scale, merit, rho)
+            if c.size and not tried[0] < m_old and np.any(mult_new > 0.0):
+                # Maratos effect: the step's curvature along the binding limits violated them;
+                # a second-order correction (the same QP at the limits' values after the step)
+                # pulls it back onto them
+                c_soc = tried[5] - G @ tried[7]
+                soc, mult_soc = qp.solve(c_soc)
+                tried_soc = _try_step(problem, layout, T, soc, loss, loss_scale, merit, rho)
+                if tried_soc[0] < tried[0]:
+                    tried, mult_new = tried_soc, mult_soc
+                    act = mult_new > 0.0
+            m_new, T_new, r_new, J_new, cost_new, c_new, G_new, delta, capped = tried
             step = float(np.linalg.norm(delta))
-            T_new = _retract(T, layout, delta)
-            r_new, J_new, cost_new, _ = _evaluate(problem, layout, T_new, loss, loss_scale, True)
-            c_new, G_new = _constraints(problem, layout, T_new)
-            m_new = merit(cost_new, c_new, rho)
             Ad = A @ delta
-            predicted = -(g @ delta + 0.5 * delta @ Ad)
+            # decrease predicted by the model the step minimised (Gauss-Newton, secant and
+            # constraint curvature): with the Gauss-Newton part alone a secant-shaped step can
+            # look uphill and end the trials before any damping is tried
+            predicted = -(g @ delta + 0.5 * delta @ (AL @ delta))
             if c.size:
                 lin = c + G @ delta
                 predicted += rho * float(np.sum(np.maximum(c, 0)) - np.sum(np.maximum(lin, 0)))
@@ -691,6 +797,7 @@ def _lm(problem, layout, T, loss, loss_scale, max_iterations, ftol, xtol, gtol, 
                 gain = (m_old - m_new) / predicted if predicted > 0 else 0.0
                 lam = min(max(lam * max(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3), 1e-12), 1e12)
                 nu_grow = 2.0
+                resets = 0
                 break
             if (predicted <= ftol * max(cost, 1e-300) or step <= xtol) and feasible:
                 break
@@ -707,11 +814,23 @@ def _lm(problem, layout, T, loss, loss_scale, max_iterations, ftol, xtol, gtol, 
             if not feasible:
                 return T, it, False, "cannot satisfy the field-of-view constraints", active, state, linz
             # no decrease possible: a minimum only if the undamped step is negligible
-            d_newton, _, _ = _constrained_step(_damped(A, 1e-12), g, c, G)
-            sigma0_sq = max(2.0 * cost / dof, 1e-300)
-            maha0 = float(np.sqrt(max(d_newton @ (A @ d_newton), 0.0) / sigma0_sq))
-            if maha0 <= 10.0 * step_sigma or 2.0 * cost / dof <= 1e-20:
+            maha0 = _newton_sigma(A, g, c, G, cost, dof)
+            # (or when the decrease that step promises, maha0^2 sigma0^2 / 2, is below the
+            # cost's rounding: no merit comparison can resolve it)
+            if (
+                maha0 <= 10.0 * step_sigma
+                or 2.0 * cost / dof <= 1e-20
+                or maha0**2 * cost / dof <= ftol * cost
+            ):
                 return T, it, True, "no further decrease possible (at a minimum)", active, state, linz
+            if restarts < 2:
+                # restart from here with fresh state (damping, penalty, curvature, multipliers)
+                restarts += 1
+                lam, nu_grow, rho, resets = 1e-4, 2.0, 0.0, 0
+                mult = np.zeros(c.size)
+                if Ssec is not None:
+                    Ssec = np.zeros_like(Ssec)
+                continue
             return (
                 T, it, False,
                 f"stalled: no decrease possible although the Newton step is {maha0:.3g} sigma",
@@ -736,12 +855,19 @@ def _lm(problem, layout, T, loss, loss_scale, max_iterations, ftol, xtol, gtol, 
         state.update(lam=lam, secant=Ssec)
         linz.update(r=r, J=J, A=A, g=g, c=c, G=G, cost=cost)
         feasible = c.size == 0 or float(np.max(c)) <= fov_tol
-        if feasible and rel <= ftol:
-            return T, it, True, "relative cost change below tolerance", active, state, linz
         if feasible and maha <= step_sigma and 2.0 * cost / dof > 1e-20:
             return T, it, True, f"step below {step_sigma:g} sigma", active, state, linz
-        if feasible and step <= xtol * (1.0 + float(np.linalg.norm(T[:, :3, 3]))):
-            return T, it, True, "step below tolerance", active, state, linz
+        small = (
+            "relative cost change below tolerance" if rel <= ftol
+            else "step below tolerance" if step <= xtol * (1.0 + float(np.linalg.norm(T[:, :3, 3])))
+            else None
+        )
+        if feasible and small:
+            # a small change may only mean heavy damping: stop only if the undamped
+            # (constrained Newton) step from here is statistically negligible too
+            if _newton_sigma(A, g, c, G, cost, dof) <= 10.0 * step_sigma or 2.0 * cost / dof <= 1e-20:
+                return T, it, True, small, active, state, linz
+            lam = min(lam, 1e-4)
     linz.update(r=r, J=J, A=A, g=g, c=c, G=G, cost=cost)
     return T, it, False, "iteration limit reached", active, state, linz
 
@@ -780,6 +906,8 @@ def solve(
         problem, layout, T, loss, loss_scale, max_iterations, ftol, xtol, gtol,
         problem.fov_tolerance_rad, step_sigma, warm,
     )
+    if not converged and max_iterations > 1 and "A" in lin:
+        status += _weakest(lin["A"], layout)
     if loss == "linear" and "J" in lin:
         # the last linearisation of the iterations is at the returned poses
         raw = _evaluate(problem, layout, T, loss, loss_scale, False)[3]
@@ -805,6 +933,7 @@ def solve(
         cov = scipy.linalg.cho_solve(cf, np.eye(n), check_finite=False)
         if not np.all(np.isfinite(cov)):
             raise np.linalg.LinAlgError
+        cov_free = cov
         if binding.size:
             # covariance on the manifold of binding constraints (Schur form of Z (Z'AZ)^-1 Z')
             Gb = G[binding]
@@ -819,9 +948,12 @@ def solve(
             cov = Z @ np.linalg.pinv(Z.T @ A_dense @ Z, rcond=1e-12) @ Z.T
         else:
             cov = np.linalg.pinv(A_dense, rcond=1e-12)
-    # redundancy numbers: 1 - diag(J C J') in the whitened space (unscaled covariance)
+        cov_free = np.linalg.pinv(A_dense, rcond=1e-12) if want_redundancy and binding.size else cov
+    # redundancy numbers: 1 - diag(J C J') in the whitened space (unscaled covariance). C ignores
+    # the field-of-view limits: an inequality that happens to bind must not make the redundancy
+    # (and with it the variance components estimated from it) jump as the weights change
     Jd = J.toarray() if scipy.sparse.issparse(J) else J
-    lev = _leverage(Jd, cov, layout.row_cols) if want_redundancy else np.zeros(J.shape[0])
+    lev = _leverage(Jd, cov_free, layout.row_cols) if want_redundancy else np.zeros(J.shape[0])
     redundancy = []
     off = 0
     for x in raw:

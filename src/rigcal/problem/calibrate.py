@@ -390,6 +390,7 @@ def _fit_radar_reference(
     only its in-plane pose (x, y, yaw) free. The covariance adds, jointly for all sensors, how
     far their poses move when the radar is tilted or lifted to the extremes its field of view
     allows (the same tilt for every pair: those moves are correlated)."""
+    check_observable(dataset, mode, reference, options.hold_radar_plane)
     radar = reference
     problems, sols, fits = {}, {}, {}
     for s in dataset.names:
@@ -692,6 +693,7 @@ def _warnings(
     out: list[str] = []
     pairs = all_pairs(dataset) if mode != "mcpe" else pairs_for_mode(dataset, mode, reference)
     out += geometry_warnings(dataset, pairs)
+    out += list(sol.extra.get("notes", ()))
     if sol.rank_deficient:
         out.append(
             "the problem is rank deficient: some degrees of freedom are not determined by the "

@@ -43,20 +43,25 @@ def draws(K: int, n: int, seed: int) -> list[np.ndarray]:
 
 
 def reliability(ds, modes, Ks, n, seed) -> None:
-    print(f"{'mode':5} {'K':>3} {'failed':>9} {'median CPU [ms]':>12}  refusals")
+    print(f"{'mode':5} {'K':>3} {'failed':>9} {'flagged':>9} {'median CPU [ms]':>12}  refusals, flags")
     for mode in modes:
         for K in Ks:
-            fails, times, msgs = 0, [], {}
+            fails, flagged, times, msgs = 0, 0, [], {}
             for boards in draws(K, n, seed):
                 t = time.process_time()
                 try:
-                    calibrate(ds.select_boards(boards), CalibrationOptions(mode=mode))
+                    r = calibrate(ds.select_boards(boards), CalibrationOptions(mode=mode))
+                    if r.flagged:  # clean data: the consistency check should not object
+                        flagged += 1
+                        key = "flagged: " + "; ".join(c.detail[:100] for c in r.verdict.failed)
+                        msgs[key] = msgs.get(key, 0) + 1
                 except RigcalError as exc:
                     fails += 1
                     key = f"{type(exc).__name__}: {str(exc)[:110]}"
                     msgs[key] = msgs.get(key, 0) + 1
                 times.append(time.process_time() - t)
-            print(f"{mode:5} {K:3d} {fails:4d}/{n:<4d} {1000 * statistics.median(times):12.1f}", flush=True)
+            print(f"{mode:5} {K:3d} {fails:4d}/{n:<4d} {flagged:4d}/{n:<4d} "
+                  f"{1000 * statistics.median(times):12.1f}", flush=True)
             for m, c in sorted(msgs.items(), key=lambda x: -x[1]):
                 print(f"{'':32}{c} x {m}")
 

@@ -27,7 +27,7 @@ def _row(label: str, f: dict) -> str:
         f"{k} {v['position']:.2f}/{v['pose']:.2f} (n={v['sensors']})" for k, v in f["by_kind"].items()
     )
     return (f"{label:8} {f['position']:9.3f} {f['pose']:9.3f} {f['sensors']:8d} "
-            f"{f['failures']:5d}/{f['runs']:<4d}  {kinds}")
+            f"{f['failures']:5d}/{f['runs']:<4d} {f['flagged']:5d}/{f['runs']:<4d}  {kinds}")
 
 
 def main() -> int:
@@ -41,7 +41,8 @@ def main() -> int:
           f"python {platform.python_version()}")
     print("fraction of true poses inside the reported 95 % region "
           "(position: 3D ellipsoid; pose: 6-DOF; 2D radars: in-plane ellipse + bounded intervals)")
-    print(f"{'mode':8} {'position':>9} {'pose':>9} {'sensors':>8} {'fail/runs':>10}  by kind (position/pose)")
+    print(f"{'mode':8} {'position':>9} {'pose':>9} {'sensors':>8} {'fail/runs':>10} {'flagged':>10}  "
+          "by kind (position/pose)")
     t0 = time.perf_counter()
     with threadpool_limits(limits=1):
         res = board_coverage(trials=args.trials, seed=args.seed, modes=tuple(args.modes.split(",")))

@@ -29,7 +29,7 @@ def test_clean_rig_is_consistent(sim, mode):
     assert r.verdict.status == "consistent", r.verdict.failed
     assert not r.flagged
     names = [c.name for c in r.verdict.checks]
-    assert names[:3] == ["pairs", "boards", "rank"]
+    assert names[:4] == ["pairs", "boards", "noise", "rank"]
     assert "bounded" in names  # the 2D radar's z, roll, pitch
 
 
@@ -87,3 +87,17 @@ def test_held_radar_plane_is_not_bounded(sim):
     r = calibrate(sim.dataset, CalibrationOptions(mode="fcpe", hold_radar_plane=True))
     assert r.sensors["radar1"].bounded == {}
     assert r.sensors["radar1"].held == ("z", "roll", "pitch")
+
+
+def test_implausible_noise_is_flagged(sim):
+    """A camera whose detections are in millimetres while the rest is in metres: a pose can
+    absorb part of it, the noise estimate absorbs the rest - and that is implausible."""
+    from dataclasses import replace
+
+    cam = sim.dataset.sensor("camera1")
+    scaled = replace(sim.dataset, sensors=tuple(
+        replace(s, points=s.points * 1.3) if s.name == cam.name else s for s in sim.dataset.sensors
+    ))
+    r = calibrate(scaled, CalibrationOptions(mode="fcpe", detect_outliers=False))
+    assert r.flagged
+    assert {c.name for c in r.verdict.failed} & {"noise", "pairs", "boards"}

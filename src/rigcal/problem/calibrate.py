@@ -15,7 +15,7 @@ from threadpoolctl import threadpool_limits
 
 from rigcal.dataset import Dataset, SensorKind
 from rigcal.errors import ConfigError, ConvergenceError, RigcalError
-from rigcal.problem.consistency import NOTE, Check, pair_checks, verdict
+from rigcal.problem.consistency import NOTE, Check, noise_check, pair_checks, verdict
 from rigcal.geometry.se3 import adjoint, invert, se3_exp, se3_log
 from rigcal.problem.configurations import (
     MODES,
@@ -454,12 +454,19 @@ def _fit_radar_reference(
     return _Fit(poses, merged, sol, {}, 0, {})
 
 
+def _row_batches(problem: Problem) -> np.ndarray:
+    """The observation batch (a pair, or a sensor in PSE) of every residual row."""
+    return np.concatenate(
+        [np.full(b.size * b.dim, i) for i, b in enumerate(problem.observations)]
+    ) if problem.observations else np.zeros(0, dtype=int)
+
+
 def _theta_all_pairs(dataset: Dataset, poses: Mapping[str, np.ndarray], reference: str, units: DetectionUnits) -> np.ndarray:
     """The noise model estimated from every comparable pair's residuals at ``poses``."""
     problem = build_pairwise(dataset, poses, reference, all_pairs(dataset))
     r, J, _, _, _ = linearise(problem)
     M = group_design(noise_map(problem, dataset, units), units)
-    return estimate_theta(r, M, 1.0)
+    return estimate_theta(r, M, 1.0, batches=_row_batches(problem))
 
 
 def _profile_moves(problem: Problem, radar: str, vertices: list[np.ndarray]) -> list[np.ndarray]:
@@ -578,7 +585,10 @@ def calibrate(dataset: Dataset, options: CalibrationOptions = CalibrationOptions
     }
     warnings = _warnings(work, mode, reference, fit, options, weak, bounded)
     pair_check, board_check, _ = pair_checks(work, fit.poses, reference, units, theta, sol.joint_covariance)
-    result_verdict = verdict(pair_check, board_check, sol.rank_deficient, bounded, weak)
+    noise_model = theta_by_sensor(units, theta)
+    result_verdict = verdict(
+        pair_check, board_check, sol.rank_deficient, bounded, weak, noise_check(work, noise_model)
+    )
     if "radar_reference" in sol.extra:
         intervals = sol.extra["radar_reference"]
         iv = ", ".join(f"{d} {lo:+.3g}..{hi:+.3g} {'m' if d == 'z' else 'deg'}" for d, (lo, hi) in intervals.items())
@@ -629,7 +639,7 @@ def calibrate(dataset: Dataset, options: CalibrationOptions = CalibrationOptions
         cross_validation_rmse_m=cv,
         solve_time_s=time.perf_counter() - t0,
         relative=_relative(work, fit, units, reference),
-        noise_model=theta_by_sensor(units, theta),
+        noise_model=noise_model,
         verdict=result_verdict,
     )
 
@@ -652,7 +662,7 @@ def _honest_covariance(
     Dw = scipy.sparse.diags(1.0 / sigma) @ noise_map(problem, dataset, units)
     # the fitted parameters absorb n of the m residual degrees of freedom (a row-by-row
     # account, (I - H) D, was tried: near-collinear groups then collapse to the floor)
-    theta = estimate_theta(r_w, group_design(Dw, units), m / max(m - n, 1))
+    theta = estimate_theta(r_w, group_design(Dw, units), m / max(m - n, 1), batches=_row_batches(problem))
     bounded: dict[str, dict[str, tuple[float, float]]] = {}
     b_cols: list[int] = []
     spread: dict[str, np.ndarray] = {}

@@ -6,8 +6,13 @@ Checks (each ``pass``, ``note`` or ``fail``; any ``fail`` flags the result):
   fits only pairs with the reference) - is compared with what the estimated noise model and
   the reported pose uncertainty predict for its residuals. Reduced chi-square far above 1
   (the 1e-4 quantile, and at least 3) means the poses contradict the noise model: **fail**.
-* ``boards``: every (pair, board) the same way, with the quantile corrected for the number of
-  boards tested; a board far off its pair's prediction (a bad detection kept) is a **fail**.
+* ``boards``: every (pair, board) the same way, against the noise estimated *without* that
+  board (a bad board inflates the estimate it would be judged by), with the quantile corrected
+  for the number of boards tested; a board far off its pair's prediction (a bad detection
+  kept) is a **fail**.
+* ``noise``: every sensor's estimated noise against what that kind of sensor can plausibly have
+  (:data:`PLAUSIBLE_NOISE`); far above it (a board in the wrong units, a wrong pose the noise
+  estimate absorbed) is a **fail**.
 * ``rank``: a rank-deficient problem leaves directions undetermined: **fail**.
 * ``bounded``: directions set by an inequality constraint (a 2D radar's z, roll, pitch) are
   reported as intervals: **note**.
@@ -24,7 +29,7 @@ import numpy as np
 import scipy.stats
 
 from rigcal.dataset import Dataset
-from rigcal.problem.noise import DetectionUnits, group_design, noise_map
+from rigcal.problem.noise import DetectionUnits, estimate_theta, group_design, noise_map
 from rigcal.problem.pairs import all_pairs
 from rigcal.problem.solver import linearise
 
@@ -33,6 +38,16 @@ PASS, NOTE, FAIL = "pass", "note", "fail"
 ALPHA = 1e-4
 #: a reduced chi-square at or below this never fails (model slack for real detections)
 MIN_FAIL_RATIO = 3.0
+
+
+#: largest plausible noise std per sensor kind and component (m; camera depth: m at 1 m range;
+#: radar angles: deg) - a calibration board's detections noisier than this are not noise
+PLAUSIBLE_NOISE = {
+    "lidar": {"x": 0.05, "y": 0.05, "z": 0.05},
+    "camera": {"lateral": 0.05, "depth": 0.02},
+    "radar": {"range": 0.2, "azimuth": 3.0},
+    "radar3d": {"range": 0.2, "azimuth": 3.0, "elevation": 5.0},
+}
 
 
 @dataclass(frozen=True)
@@ -92,8 +107,8 @@ def pair_checks(
     if not problem.observations:
         return Check("pairs", PASS, "no comparable pairs"), Check("boards", PASS, "-"), {}
     r, J, _, _, layout = linearise(problem)  # unit sigma: r is metric
-    D = noise_map(problem, dataset, units)
-    var = group_design(D, units) @ theta
+    M = group_design(noise_map(problem, dataset, units), units)
+    pose_var = np.zeros(r.size)
     names = [n for n in layout.names if np.any(layout.cols[layout.index[n]] >= 0)]
     if names:
         C6 = joint_covariance(names)
@@ -101,8 +116,17 @@ def pair_checks(
         keep = cols >= 0
         C = np.zeros((layout.n_free, layout.n_free))
         C[np.ix_(cols[keep], cols[keep])] = C6[np.ix_(keep, keep)]
-        var = var + np.einsum("ij,jk,ik->i", J, C, J)
-    z2 = r**2 / np.maximum(var, 1e-30)
+        pose_var = np.einsum("ij,jk,ik->i", J, C, J)
+    z2 = r**2 / np.maximum(M @ theta + pose_var, 1e-30)
+    # each board against the noise estimated without it (a bad board inflates the noise
+    # estimate it would otherwise be judged by)
+    batches = np.concatenate([np.full(b.size * b.dim, i) for i, b in enumerate(problem.observations)])
+    row_board = np.concatenate([np.repeat(b.board, b.dim) for b in problem.observations])
+    z2_deleted = np.empty_like(z2)
+    for k in np.unique(row_board):
+        out = row_board == k
+        theta_k = estimate_theta(r[~out], M[~out], 1.0, batches=batches[~out])
+        z2_deleted[out] = r[out] ** 2 / np.maximum(M[out] @ theta_k + pose_var[out], 1e-30)
     ratios: dict[str, float] = {}
     bad_pairs, bad_boards = [], []
     n_boards = sum(len(np.unique(b.board)) for b in problem.observations)
@@ -115,8 +139,9 @@ def pair_checks(
         ratios[b.label] = ratio
         if ratio > _limit(zb.size, len(problem.observations)):
             bad_pairs.append(f"{b.label} (reduced chi-square {ratio:.1f})")
+        zdel = z2_deleted[rows].reshape(b.size, b.dim)
         for k in np.unique(b.board):
-            zk = zb[b.board == k]
+            zk = zdel[b.board == k]
             rk = float(np.mean(zk))
             if rk > _limit(zk.size, max(n_boards, 1)):
                 bad_boards.append(f"board {int(k)} in {b.label} ({np.sqrt(rk):.1f} sigma)")
@@ -138,14 +163,32 @@ def pair_checks(
     return pair_check, board_check, ratios
 
 
+def noise_check(dataset: Dataset, noise_model: Mapping[str, Mapping[str, float]]) -> Check:
+    """The ``noise`` check: ``noise_model`` (:func:`rigcal.problem.noise.theta_by_sensor`)
+    against :data:`PLAUSIBLE_NOISE`."""
+    bad = []
+    for name, comps in noise_model.items():
+        limits = PLAUSIBLE_NOISE[dataset.sensor(name).kind.value]
+        for comp, value in comps.items():
+            if value > limits[comp]:
+                unit = "deg" if comp in ("azimuth", "elevation") else "mm"
+                show = (lambda v: f"{v:.2f}") if unit == "deg" else (lambda v: f"{v * 1000:.0f}")
+                bad.append(f"{name} {comp} {show(value)} {unit} (plausible: up to {show(limits[comp])} {unit})")
+    if bad:
+        return Check("noise", FAIL, "noise implausible for the sensor: " + "; ".join(bad)
+                     + " - bad detections absorbed by the noise estimate, wrong units, or a wrong pose")
+    return Check("noise", PASS, "every sensor's noise is plausible for its kind")
+
+
 def verdict(
     pair_check: Check,
     board_check: Check,
     rank_deficient: bool,
     bounded: Mapping[str, Mapping[str, tuple[float, float]]],
     weak: Mapping[str, list[str]],
+    noise: Check | None = None,
 ) -> Verdict:
-    checks = [pair_check, board_check]
+    checks = [pair_check, board_check] + ([noise] if noise is not None else [])
     checks.append(
         Check("rank", FAIL, "the problem is rank deficient: some directions are not determined "
               "by the boards") if rank_deficient else Check("rank", PASS, "every direction determined")
@@ -160,4 +203,4 @@ def verdict(
     return Verdict(tuple(checks))
 
 
-__all__ = ["Check", "FAIL", "NOTE", "PASS", "Verdict", "pair_checks", "verdict"]
+__all__ = ["Check", "FAIL", "NOTE", "PASS", "PLAUSIBLE_NOISE", "Verdict", "noise_check", "pair_checks", "verdict"]

@@ -235,27 +235,39 @@ def group_design(D, units: DetectionUnits) -> np.ndarray:
 
 
 def estimate_theta(
-    r_metric: np.ndarray, M: np.ndarray, dof_factor: float, floor: float = THETA_FLOOR
+    r_metric: np.ndarray,
+    M: np.ndarray,
+    dof_factor: float,
+    floor: float = THETA_FLOOR,
+    batches: np.ndarray | None = None,
 ) -> np.ndarray:
     """Group variances from squared metric residuals: ``r_i^2 * dof_factor ~ M theta``.
 
-    Non-negative least squares, reweighted by the predicted variance of each ``r_i^2`` (three
-    rounds). Groups no residual depends on keep the floor."""
+    Non-negative least squares, each row weighted by the inverse square of its predicted
+    variance (``Var(r^2) = 2 E[r^2]^2``), three rounds. The prediction is clamped from below at a
+    tenth of the mean square of the row's batch (``batches[i]``: a pair or sensor; default one
+    batch): a group the first rounds set to zero cannot make its rows' weights explode, and a
+    precise pair (lidar-lidar) weighs as much as a noisy one (camera-radar) from the start.
+    Groups no residual depends on keep the floor."""
     y = r_metric**2 * dof_factor
     used = np.any(M > 0, axis=0)
     theta = np.full(M.shape[1], floor)
     if not np.any(used) or y.size == 0:
         return theta
+    b = np.zeros(y.size, dtype=int) if batches is None else np.asarray(batches, dtype=int)
+    counts = np.bincount(b)
+    level = np.bincount(b, weights=y) / np.maximum(counts, 1)
+    low = np.maximum(0.1 * level[b], 1e-30)
     Mu = M[:, used]
-    w = np.ones(y.size)
+    pred = np.maximum(level[b], 1e-30)  # first round: each batch at its own scale
     th = np.zeros(Mu.shape[1])
     for _ in range(3):
-        sw = np.sqrt(w)
-        col = np.maximum(np.sqrt(np.sum((Mu * sw[:, None]) ** 2, axis=0)), 1e-300)
-        th_scaled, _ = scipy.optimize.nnls((Mu * sw[:, None]) / col, y * sw, maxiter=50 * Mu.shape[1])
+        sw = 1.0 / np.maximum(pred, low)
+        A = Mu * sw[:, None]
+        col = np.maximum(np.sqrt(np.sum(A**2, axis=0)), 1e-300)
+        th_scaled, _ = scipy.optimize.nnls(A / col, y * sw, maxiter=50 * Mu.shape[1])
         th = th_scaled / col
-        pred = np.maximum(Mu @ th, 1e-30)
-        w = 1.0 / pred**2  # Var(r^2) = 2 E[r^2]^2
+        pred = Mu @ th
     theta[used] = np.maximum(th, floor)
     return theta
 

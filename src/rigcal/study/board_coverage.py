@@ -55,6 +55,7 @@ class CoverageTally:
     pose_inside: int = 0
     sensors: int = 0
     failures: int = 0
+    flagged: int = 0
     runs: int = 0
     by_kind: dict = field(default_factory=dict)
 
@@ -75,6 +76,7 @@ class CoverageTally:
             "sensors": self.sensors,
             "runs": self.runs,
             "failures": self.failures,
+            "flagged": self.flagged,
             "by_kind": {k: {"position": v[0] / v[2], "pose": v[1] / v[2], "sensors": v[2]}
                         for k, v in sorted(self.by_kind.items())},
         }
@@ -146,7 +148,8 @@ def board_coverage(
     """Coverage of the reported 95 % regions per mode over ``trials`` simulated rigs.
 
     Returns ``{mode: {"position": fraction, "pose": fraction, "sensors": n, "runs": n,
-    "failures": n, "by_kind": {...}}}``. A run that raises counts as a failure (no sensors).
+    "failures": n, "flagged": n, "by_kind": {...}}}``. A run that raises counts as a failure
+    (no sensors); ``flagged``: runs the consistency check flagged (the data are clean).
     """
     from rigcal.problem.calibrate import CalibrationOptions, calibrate
 
@@ -167,6 +170,7 @@ def board_coverage(
             except RigcalError:
                 tally.failures += 1
                 continue
+            tally.flagged += int(result.flagged)  # clean simulated data: should stay rare
             ref = result.reference
             for s in sim.dataset.sensors:
                 if s.name == ref:

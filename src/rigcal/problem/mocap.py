@@ -92,6 +92,11 @@ class TargetObservation:
     T_robot_target: np.ndarray
     measured: np.ndarray
     keypoints_target: np.ndarray | None = None
+    #: which hold (one still pose of the target) the observation belongs to: frames of one hold
+    #: share their errors (the MCS pose of the still target, the extractor's view of it) and
+    #: are not independent. "" = found from the MCS poses (consecutive observations of one
+    #: target by one sensor whose ``T_robot_target`` stays within a few centimetres / degrees)
+    hold: str = ""
 
     def __post_init__(self) -> None:
         T = np.array(self.T_robot_target, dtype=float)
@@ -150,6 +155,10 @@ class MocapOptions:
     sync_tolerance_ns: int = 5_000_000
     #: circle-board detections' noise [m] when board placements join the problem
     board_sigma_m: float = 0.01
+    #: (rotation [rad], translation [m]): the least per-hold error of a still target's MCS pose
+    #: the uncertainty assumes (a few holds cannot show a small one): a Vicon-class system
+    #: tracks a 0.5 m body to about 1 mrad and 0.5 mm
+    hold_sigma_floor: tuple[float, float] = (0.001, 0.0005)
 
     def __post_init__(self) -> None:
         if self.correspondences not in CORRESPONDENCES:
@@ -349,6 +358,312 @@ def _settled(sol, poses, sensors, options: MocapOptions) -> tuple[bool, float, f
     return settled, worst_t, worst_r
 
 
+#: consecutive observations of one target by one sensor belong to one hold while the target's
+#: pose in the robot frame moves less than these between them (used when ``hold`` is not set)
+HOLD_TRANSLATION_M = 0.03
+HOLD_ROTATION_RAD = np.radians(2.0)
+#: a camera start is repaired by PnP when fewer than this fraction of the target points project
+#: into the image under it (e.g. a start behind the camera)
+MIN_VALID_PROJECTION = 0.5
+
+
+@dataclass(frozen=True, eq=False)  # holds arrays: compare by identity
+class MocapSensorFit:
+    """How one sensor's calibration fits its measurements (see :func:`calibrate_mocap_fit`).
+
+    ``unit``: ``"m"`` (lidar) or ``"px"`` (camera). ``sigma_nominal``: the configured noise;
+    ``noise_sigma``: this sensor's own noise estimated from its residuals (its variance
+    component, in ``unit``); ``reduced_chi2``: ``(noise_sigma / sigma_nominal) ** 2``;
+    ``hold_inflation``: the trace of the covariance over that of the covariance with independent
+    frames (> 1 when the frames of one hold share their errors); ``hold_sigma``: the std of the
+    per-hold error of the target pose (rotation [rad], translation [m]) estimated from how the
+    holds scatter; ``holds``,
+    ``observations``, ``residuals``: counts behind them; ``matches[target] = (within, total)``:
+    measurements within 3 noise sigma of the fitted model, per target; ``covariance_naive``
+    (6, 6): the covariance with one noise scale shared by every sensor and every frame counted
+    as independent (what was reported before); ``start``: ``"initial"`` or ``"pnp"`` (a camera
+    whose initial pose put the target outside the image, started from PnP of its corners)."""
+
+    name: str
+    kind: SensorKind
+    unit: str
+    sigma_nominal: float
+    noise_sigma: float
+    reduced_chi2: float
+    hold_inflation: float
+    holds: int
+    observations: int
+    residuals: int
+    matches: Mapping[str, tuple[int, int]]
+    covariance_naive: np.ndarray
+    start: str = "initial"
+    #: (rotation [rad], translation [m]) std of the per-hold error of the target's pose
+    hold_sigma: tuple[float, float] = (0.0, 0.0)
+
+    @property
+    def match_fraction(self) -> float:
+        total = sum(t for _, t in self.matches.values())
+        return sum(w for w, _ in self.matches.values()) / total if total else float("nan")
+
+
+@dataclass(frozen=True, eq=False)  # holds arrays: compare by identity
+class MocapFit:
+    """:func:`calibrate_mocap_fit`'s value: the calibration and per-sensor fit statistics."""
+
+    result: CalibrationResult
+    sensors: Mapping[str, MocapSensorFit]
+
+
+def hold_labels(observations: Sequence[TargetObservation]) -> list[str]:
+    """The hold of every observation: ``"<sensor>/<hold>"`` with the observation's own ``hold``,
+    else consecutive observations (in time) of one target by one sensor whose
+    ``T_robot_target`` moves less than HOLD_TRANSLATION_M / HOLD_ROTATION_RAD from the previous
+    one share a hold."""
+    out = [""] * len(observations)
+    order = sorted(range(len(observations)),
+                   key=lambda i: (observations[i].sensor, observations[i].target, observations[i].t_ns))
+    prev = None
+    k = 0
+    for i in order:
+        o = observations[i]
+        if o.hold:
+            out[i] = f"{o.sensor}/{o.hold}"
+            continue
+        if prev is not None and prev.sensor == o.sensor and prev.target == o.target:
+            dt = float(np.linalg.norm(o.T_robot_target[:3, 3] - prev.T_robot_target[:3, 3]))
+            dr = float(np.linalg.norm(so3_log(prev.T_robot_target[:3, :3].T @ o.T_robot_target[:3, :3])))
+            if dt > HOLD_TRANSLATION_M or dr > HOLD_ROTATION_RAD:
+                k += 1
+        else:
+            k += 1
+        out[i] = f"{o.sensor}/{o.target}#{k}"
+        prev = o
+    return out
+
+
+def _valid_fraction(sensor: MocapSensor, obs: Sequence[TargetObservation], T_R_S: np.ndarray) -> float:
+    ok = total = 0
+    for o in obs:
+        pts = o.keypoints_target
+        if pts is None:
+            continue
+        X = (invert(T_R_S) @ o.T_robot_target)
+        x = pts @ X[:3, :3].T + X[:3, 3]
+        uv, valid = sensor.camera.project(x)
+        ok += int(np.sum(np.all(np.isfinite(uv), axis=1) & np.asarray(valid, dtype=bool)))
+        total += len(pts)
+    return ok / total if total else 1.0
+
+
+def _pnp_start(sensor: MocapSensor, obs: Sequence[TargetObservation]) -> np.ndarray | None:
+    """``T_robot_camera`` from PnP of every observation with corners: the medoid of the poses
+    ``T_robot_target inv(T_camera_target)`` (None when no PnP succeeds)."""
+    from rigcal.extract.camera import solve_pnp
+
+    cands = []
+    for o in obs:
+        if o.keypoints_target is None or len(o.keypoints_target) < 4:
+            continue
+        fit = solve_pnp(sensor.camera, o.keypoints_target, o.measured, sensor=sensor.name, t_ns=o.t_ns)
+        if hasattr(fit, "T_camera_target"):
+            cands.append(o.T_robot_target @ invert(fit.T_camera_target))
+    if not cands:
+        return None
+
+    def dist(a, b):
+        return float(np.linalg.norm(a[:3, 3] - b[:3, 3])) + float(np.linalg.norm(so3_log(a[:3, :3].T @ b[:3, :3])))
+
+    cost = [sum(dist(a, b) for b in cands) for a in cands]
+    return cands[int(np.argmin(cost))]
+
+
+def _row_labels(prob: Problem, holds: list[str]):
+    """Per Jacobian row of the observation batches: its sensor (None for board pairs) and
+    hold; and per batch item the observation index."""
+    sensor, hold = [], []
+    for b in prob.observations:
+        ours = b.label.startswith(ROBOT)
+        for i in b.board:
+            for _ in range(b.dim):
+                sensor.append(b.sensor if ours else None)
+                hold.append(holds[int(i)] if ours else None)
+    return sensor, hold
+
+
+def _hold_moments(Js, r, obs_of_row, hold_of_row, Ads, C):
+    """Within-hold noise and between-hold error of one sensor (rows of that sensor only).
+
+    ``Js`` (n, 6) the residuals' Jacobian w.r.t. the sensor's pose, ``r`` (n,) the whitened
+    residuals, ``Ads[i]`` the adjoint of ``T_sensor_target`` of observation i (a right
+    perturbation ``delta`` of the target's pose moves the residuals by ``-Js Ad delta``),
+    ``C = (Js' Js)^-1``. Every hold g gets its own 6-DOF pose error ``delta_g`` (the MCS error
+    of the still target, the extractor's view of it), ``delta_g ~ N(0, diag(tr^2 I3, tt^2 I3))``
+    shared by its frames. Returns ``(sigma_w^2, tr^2, tt^2, [(M_g) per hold])`` with the
+    within-hold variance from the residuals left after fitting every hold's own ``delta_g``
+    and the two between-hold variances by matching the expected spread of the per-hold fits
+    (all linear in the three variances) to the observed one."""
+    holds = sorted(set(hold_of_row))
+    Jd = np.zeros_like(Js)
+    for i in set(obs_of_row):
+        rows = obs_of_row == i
+        Jd[rows] = -Js[rows] @ Ads[i]
+    n = len(r)
+    P, ranks, Ms, within_sq, within_dof = [], [], [], 0.0, 0
+    for g in holds:
+        rows = hold_of_row == g
+        Jg = Jd[rows]
+        pinv = np.linalg.pinv(Jg.T @ Jg, rcond=1e-9)
+        rank = int(np.linalg.matrix_rank(Jg.T @ Jg, tol=1e-9 * max(np.abs(Jg).max(), 1e-300) ** 2))
+        Pg = np.zeros((6, n))
+        Pg[:, rows] = -pinv @ Jg.T
+        d = Pg @ r
+        within_sq += float(np.sum((r[rows] + Jg @ d) ** 2))
+        within_dof += int(np.sum(rows)) - rank
+        P.append(Pg)
+        Ms.append(Js[rows].T @ Jg)
+    s2w = within_sq / within_dof if within_dof > 0 else float(np.sum(r * r)) / max(n - 6, 1)
+    if len(holds) < 2:
+        return s2w, 0.0, 0.0, Ms, None
+
+    def residualise(X):  # (I - H) X with H = Js C Js'
+        return X - Js @ (C @ (Js.T @ X))
+
+    RJ = [residualise(Jd * (hold_of_row == g)[:, None]) for g in holds]
+    sel = (np.r_[np.ones(3), np.zeros(3)].astype(bool), np.r_[np.zeros(3), np.ones(3)].astype(bool))
+    coef = np.zeros((2, 3))
+    obs_q = np.zeros(2)
+    for Pg in P:
+        d = Pg @ r
+        PJ = Pg @ Js
+        noise = Pg @ Pg.T - PJ @ C @ PJ.T  # P (I - H) P'
+        per = [Pg @ X for X in RJ]
+        for k, m in enumerate(sel):
+            obs_q[k] += float(np.sum(d[m] ** 2))
+            coef[k, 0] += float(np.trace(noise[np.ix_(m, m)]))
+            for X in per:
+                coef[k, 1] += float(np.sum(X[m][:, sel[0]] ** 2))
+                coef[k, 2] += float(np.sum(X[m][:, sel[1]] ** 2))
+    rhs = obs_q - coef[:, 0] * s2w
+    B = coef[:, 1:]
+    try:
+        tau = np.linalg.solve(B, rhs)
+    except np.linalg.LinAlgError:
+        tau = np.linalg.lstsq(B, rhs, rcond=None)[0]
+    if np.any(tau < 0):  # the non-negative solution on an edge of the quadrant
+        best = None
+        for k in range(2):
+            t = np.zeros(2)
+            if B[:, k] @ B[:, k] > 0:
+                t[k] = max(0.0, float(B[:, k] @ rhs / (B[:, k] @ B[:, k])))
+            err = float(np.sum((B @ t - rhs) ** 2))
+            if best is None or err < best[0]:
+                best = (err, t)
+        tau = best[1]
+    return s2w, float(tau[0]), float(tau[1]), Ms, (obs_q - coef[:, 0] * s2w, coef[:, 1:])
+
+
+def _fit_statistics(prob: Problem, sol, sensors, observations, holds, options: MocapOptions):
+    """Per-sensor noise (within-hold variance component) and hold errors at the solution:
+    returns (reduced chi2 per sensor, hold inflation per sensor, hold sigmas per sensor, joint
+    covariance function)."""
+    from rigcal.geometry.se3 import adjoint
+    from rigcal.problem.solver import _evaluate, prepare
+
+    layout = prepare(prob)
+    T = np.stack([sol.poses[p.name] for p in prob.poses])
+    r, J, _, _ = _evaluate(prob, layout, T, "linear", 1.0, True)
+    J = J.toarray() if hasattr(J, "toarray") else np.asarray(J)
+    m_obs = layout.m_obs
+    row_obs, row_sensor = [], []
+    for b in prob.observations:
+        ours = b.label.startswith(ROBOT)
+        row_obs.append(np.repeat(np.where(ours, b.board, -1), b.dim))
+        row_sensor += [b.sensor if ours else None] * (b.size * b.dim)
+    row_obs = np.concatenate(row_obs + [np.full(len(r) - m_obs, -1)])
+    row_sensor = np.array(row_sensor + [None] * (len(r) - m_obs), dtype=object)
+    C0 = np.linalg.pinv(J.T @ J, rcond=1e-12)
+    scale, infl, hold_sigma, blocks, stats = {}, {}, {}, {}, {}
+    for s in sensors:
+        rows = row_sensor == s.name
+        cols = layout.cols[layout.index[s.name]]
+        cols = cols[cols >= 0]
+        Js, rs = J[np.ix_(rows, cols)], r[rows]
+        obs_rows = row_obs[rows]
+        hold_rows = np.array([holds[i] for i in obs_rows], dtype=object)
+        Ads = {int(i): adjoint(invert(sol.poses[s.name]) @ observations[int(i)].T_robot_target)
+               for i in set(obs_rows.tolist())}
+        A = Js.T @ Js
+        Cs = np.linalg.pinv(A, rcond=1e-12)
+        s2w, tr2, tt2, Ms, eq = _hold_moments(Js, rs, obs_rows, hold_rows, Ads, Cs)
+        scale[s.name] = s2w if s2w > 0 else 1.0
+        stats[s.name] = (cols, A, Cs, (tr2, tt2), Ms, eq, len(set(obs_rows.tolist())))
+    # the MCS errs alike for every target: the sensors' equations pooled, a floor of the MCS's
+    # own accuracy (options.hold_sigma_floor) below, each sensor's own estimate above
+    eqs = [v[5] for v in stats.values() if v[5] is not None]
+    pooled = (0.0, 0.0)
+    if eqs:
+        rhs = np.concatenate([e[0] for e in eqs])
+        B = np.vstack([e[1] for e in eqs])
+        t = np.linalg.lstsq(B, rhs, rcond=None)[0]
+        pooled = (max(float(t[0]), 0.0), max(float(t[1]), 0.0))
+    floor_r, floor_t = options.hold_sigma_floor
+    for s in sensors:
+        cols, A, Cs, own, Ms, eq, n_obs = stats[s.name]
+        tr2 = max(own[0], pooled[0], floor_r ** 2)
+        tt2 = max(own[1], pooled[1], floor_t ** 2)
+        naive = scale[s.name] * Cs
+        if eq is not None:
+            Psi = np.diag([tr2] * 3 + [tt2] * 3)
+            meat = scale[s.name] * A + sum(M @ Psi @ M.T for M in Ms)
+            cov = Cs @ meat @ Cs
+        else:  # one hold: its frames may be copies of each other
+            cov = naive * max(1.0, float(n_obs))
+        cov = 0.5 * (cov + cov.T)
+        infl[s.name] = float(np.trace(cov) / np.trace(naive)) if np.trace(naive) > 0 else 1.0
+        hold_sigma[s.name] = (float(np.sqrt(tr2)), float(np.sqrt(tt2)))
+        blocks[s.name] = (cols, cov, naive)
+    # the joint covariance: the full one with every sensor's rows weighted by its own noise,
+    # each sensor's block replaced by its hold-aware one and cross terms scaled alike
+    w = np.ones(len(r))
+    for s in sensors:
+        w[row_sensor == s.name] = 1.0 / np.sqrt(scale[s.name])
+    Jw = J * w[:, None]
+    C = np.linalg.pinv(Jw.T @ Jw, rcond=1e-12)
+    D = np.ones(C.shape[0])
+    for name, (cols, cov, naive) in blocks.items():
+        D[cols] = np.sqrt(max(infl[name], 1.0))
+    C = D[:, None] * C * D[None, :]
+    for name, (cols, cov, naive) in blocks.items():
+        C[np.ix_(cols, cols)] = cov
+    del C0
+
+    def joint(names):
+        cols = np.concatenate([layout.cols[layout.index[n]] for n in names])
+        out = np.zeros((len(cols), len(cols)))
+        idx = np.flatnonzero(cols >= 0)
+        if idx.size:
+            c = cols[idx]
+            out[np.ix_(idx, idx)] = C[np.ix_(c, c)]
+        return out
+
+    return scale, infl, hold_sigma, joint
+
+
+def _matches(prob: Problem, sol, sensors, observations, scale) -> dict[str, dict[str, tuple[int, int]]]:
+    out: dict[str, dict[str, list[int]]] = {s.name: {} for s in sensors}
+    for b, raw in zip(prob.observations, sol.residuals):
+        if not b.label.startswith(ROBOT):
+            continue
+        lim = 3.0 * np.sqrt(scale[b.sensor] * b.dim)
+        e = np.linalg.norm(raw, axis=1)
+        for i, ok in zip(b.board, e <= lim):
+            t = observations[int(i)].target
+            c = out[b.sensor].setdefault(t, [0, 0])
+            c[0] += int(ok)
+            c[1] += 1
+    return {s: {t: (c[0], c[1]) for t, c in d.items()} for s, d in out.items()}
+
+
 def calibrate_mocap(
     sensors: Sequence[MocapSensor],
     observations: Sequence[TargetObservation],
@@ -357,7 +672,21 @@ def calibrate_mocap(
     options: MocapOptions = MocapOptions(),
     boards=None,
 ) -> CalibrationResult:
-    """``T_robot_sensor`` for every sensor from MCS-tracked target observations.
+    """``T_robot_sensor`` for every sensor from MCS-tracked target observations: the
+    ``result`` of :func:`calibrate_mocap_fit` (see there)."""
+    return calibrate_mocap_fit(sensors, observations, initial, templates, options, boards).result
+
+
+def calibrate_mocap_fit(
+    sensors: Sequence[MocapSensor],
+    observations: Sequence[TargetObservation],
+    initial: Mapping[str, np.ndarray],
+    templates: Mapping[str, np.ndarray | TargetSurface] | None = None,
+    options: MocapOptions = MocapOptions(),
+    boards=None,
+) -> MocapFit:
+    """``T_robot_sensor`` for every sensor from MCS-tracked target observations, with each
+    sensor's fit statistics (:class:`MocapSensorFit`).
 
     ``initial``: ``T_robot_sensor`` guesses (e.g. CAD or TF). ``templates``: target name ->
     its :class:`~rigcal.targets.surface.TargetSurface` (``TargetSurface.of(target)``: analytic
@@ -365,7 +694,18 @@ def calibrate_mocap(
     correspondences. ``options.correspondences`` chooses how those are matched.
     ``boards``: an optional :class:`rigcal.dataset.Dataset` of circle-board placements seen by
     these sensors (same names): their pairwise terms join the problem (Domhof et al.).
-    Raises ConvergenceError when the correspondence iterations do not settle.
+
+    A camera whose initial pose puts most target corners outside the image (e.g. behind it)
+    starts from PnP of its corners instead. The uncertainty is honest about two things the
+    least-squares covariance is not: every sensor has its own noise (a variance component per
+    sensor, ``result.noise_sigma_m`` for lidars, ``MocapSensorFit.noise_sigma`` for all), and
+    the frames of one hold share their errors (the covariance of a sensor is widened by how
+    much more its per-hold scores scatter than independent frames would:
+    ``MocapSensorFit.hold_inflation``).
+
+    Raises ConvergenceError when the correspondence iterations do not settle, or when a
+    sensor's measurements leave its pose undetermined (e.g. a camera that sees none of its
+    target points under the initial calibration and whose corners PnP cannot place).
     """
     surfaces = {k: v if isinstance(v, TargetSurface) else TargetSurface.of_template(v, k)
                 for k, v in (templates or {}).items()}
@@ -376,6 +716,23 @@ def calibrate_mocap(
             raise InputError(f"board dataset sensors {unknown} are not among the mocap sensors")
     t0 = time.perf_counter()
     poses = {s.name: np.asarray(initial[s.name], dtype=float) for s in sensors}
+    starts = {s.name: "initial" for s in sensors}
+    for s in sensors:
+        if s.kind != SensorKind.CAMERA:
+            continue
+        own = [o for o in observations if o.sensor == s.name]
+        valid = _valid_fraction(s, own, poses[s.name])
+        if valid >= MIN_VALID_PROJECTION:
+            continue
+        T = _pnp_start(s, own)
+        if T is None or _valid_fraction(s, own, T) < MIN_VALID_PROJECTION:
+            raise ConvergenceError(
+                f"camera '{s.name}': under the initial calibration only {100 * valid:.0f} % of its "
+                f"target points project into the image (is the initial T_robot_sensor right? a "
+                f"start behind the camera sees nothing) and PnP of its measured corners could not "
+                f"place the camera either"
+            )
+        poses[s.name], starts[s.name] = T, "pnp"
     kinds = {s.name: s.kind for s in sensors}
     needs_iterations = any(o.keypoints_target is None for o in observations)
     # the surface phase applies to lidar measurements without keypoints
@@ -411,13 +768,46 @@ def calibrate_mocap(
                     f"{options.max_correspondence_iterations} iterations"
                 )
     assert sol is not None
-    estimates, rmse, reproj = {}, {}, {}
+    holds = hold_labels(observations)
+    coupled = options.target_pose_sigma is not None or boards is not None
+    with threadpool_limits(limits=1):
+        scale, infl, hsig, joint = _fit_statistics(prob, sol, sensors, observations, holds, options)
+        if coupled or any(abs(np.log(v)) > np.log(4.0) for v in scale.values()):
+            # every sensor weighted by its own noise (and the robust loss's scale with it)
+            factor = {n: float(np.sqrt(v)) for n, v in scale.items()}
+            prob = prob.with_observations(tuple(
+                b.with_sigma(b.sigma * factor[b.sensor]) if b.label.startswith(ROBOT) else b
+                for b in prob.observations))
+            sol2 = solve(prob, loss=options.loss, loss_scale=options.loss_scale, start=sol.poses)
+            if sol2.converged:
+                sol = sol2
+                poses = {s.name: sol.poses[s.name] for s in sensors}
+            s2, infl, hsig, joint = _fit_statistics(prob, sol, sensors, observations, holds, options)
+            scale = {n: scale[n] * s2[n] for n in scale}
+            prob = prob.with_observations(tuple(
+                b.with_sigma(b.sigma / factor[b.sensor]) if b.label.startswith(ROBOT) else b
+                for b in prob.observations))
+    for s in sensors:
+        if s.kind == SensorKind.CAMERA:
+            own = [o for o in observations if o.sensor == s.name]
+            valid = _valid_fraction(s, own, poses[s.name])
+            if valid < MIN_VALID_PROJECTION:
+                raise ConvergenceError(
+                    f"camera '{s.name}': only {100 * valid:.0f} % of its target points project into "
+                    f"the image under the estimate: its pose is not determined by its measurements")
+    estimates, rmse, reproj, fits, noise = {}, {}, {}, {}, {}
     errors: dict[str, list[np.ndarray]] = {s.name: [] for s in sensors}
     for b, r in zip(prob.observations, sol.residuals):
         if b.label.startswith(ROBOT):
             errors[b.sensor].append(np.linalg.norm(r * b.sigma, axis=1))
+    matches = _matches(prob, sol, sensors, observations, scale)
     for s in sensors:
-        cov = sol.pose_covariance(s.name)
+        cov = joint([s.name])
+        ev = np.linalg.eigvalsh(0.5 * (cov + cov.T))
+        if not np.all(np.isfinite(cov)) or ev.min() <= 1e-30 * max(ev.max(), 1e-300):
+            raise ConvergenceError(
+                f"sensor '{s.name}': its measurements do not determine its pose (the covariance is "
+                f"singular: smallest eigenvalue {ev.min():.3g}); no estimate is returned")
         estimates[s.name] = SensorEstimate(
             name=s.name, kind=s.kind, frame_id=s.frame_id, T_reference_sensor=poses[s.name].copy(),
             covariance=cov, std=pose_std(poses[s.name], cov),
@@ -425,7 +815,20 @@ def calibrate_mocap(
         e = np.concatenate(errors[s.name]) if errors[s.name] else np.full(1, np.nan)
         value = float(np.sqrt(np.mean(e**2)))
         (reproj if s.kind == SensorKind.CAMERA else rmse)[f"{ROBOT}-{s.name}"] = value
-    return CalibrationResult(
+        sigma = float(s.sigma * np.sqrt(scale[s.name]))
+        if s.kind == SensorKind.LIDAR:
+            noise[s.name] = (sigma,)
+        fits[s.name] = MocapSensorFit(
+            name=s.name, kind=s.kind, unit="px" if s.kind == SensorKind.CAMERA else "m",
+            sigma_nominal=float(s.sigma), noise_sigma=sigma, reduced_chi2=float(scale[s.name]),
+            hold_inflation=float(infl[s.name]), hold_sigma=hsig[s.name],
+            holds=len({h for h, o in zip(holds, observations) if o.sensor == s.name}),
+            observations=sum(1 for o in observations if o.sensor == s.name),
+            residuals=int(sum(len(x) for x in errors[s.name])),
+            matches=matches.get(s.name, {}), covariance_naive=sol.pose_covariance(s.name),
+            start=starts[s.name],
+        )
+    result = CalibrationResult(
         mode="mocap",
         reference=ROBOT,
         converged=True,
@@ -436,8 +839,10 @@ def calibrate_mocap(
         iterations=sol.iterations,
         cost=sol.cost,
         num_boards=len(observations),
+        noise_sigma_m=noise,
         noise_iterations=it,
         solve_time_s=time.perf_counter() - t0,
         reprojection_px=reproj,
-        relative=relative_estimates([s.name for s in sensors], poses, sol.joint_covariance),
+        relative=relative_estimates([s.name for s in sensors], poses, joint),
     )
+    return MocapFit(result=result, sensors=fits)

@@ -365,6 +365,9 @@ HOLD_ROTATION_RAD = np.radians(2.0)
 #: a camera start is repaired by PnP when fewer than this fraction of the target points project
 #: into the image under it (e.g. a start behind the camera)
 MIN_VALID_PROJECTION = 0.5
+#: a still target's per-hold MCS error: a translation error t and a rotation error t / this
+#: (the markers' baseline: a Vicon body's markers span about half a metre)
+HOLD_BASELINE_M = 0.5
 
 
 @dataclass(frozen=True, eq=False)  # holds arrays: compare by identity
@@ -491,75 +494,67 @@ def _row_labels(prob: Problem, holds: list[str]):
 
 
 def _hold_moments(Js, r, obs_of_row, hold_of_row, Ads, C):
-    """Within-hold noise and between-hold error of one sensor (rows of that sensor only).
+    """Within-hold noise and the between-hold error's moment equation of one sensor (its rows).
 
-    ``Js`` (n, 6) the residuals' Jacobian w.r.t. the sensor's pose, ``r`` (n,) the whitened
-    residuals, ``Ads[i]`` the adjoint of ``T_sensor_target`` of observation i (a right
-    perturbation ``delta`` of the target's pose moves the residuals by ``-Js Ad delta``),
-    ``C = (Js' Js)^-1``. Every hold g gets its own 6-DOF pose error ``delta_g`` (the MCS error
-    of the still target, the extractor's view of it), ``delta_g ~ N(0, diag(tr^2 I3, tt^2 I3))``
-    shared by its frames. Returns ``(sigma_w^2, tr^2, tt^2, [(M_g) per hold])`` with the
-    within-hold variance from the residuals left after fitting every hold's own ``delta_g``
-    and the two between-hold variances by matching the expected spread of the per-hold fits
-    (all linear in the three variances) to the observed one."""
+    ``Js`` (n, 6): the residuals' Jacobian w.r.t. the sensor's pose; ``r`` (n,): the whitened
+    residuals; ``Ads[i]``: the adjoint of ``T_sensor_target`` of observation i (a right
+    perturbation ``delta`` of the target's pose moves the residuals by ``-Js Ad delta``);
+    ``C = (Js' Js)^-1``. Every hold g has its own error ``delta_g`` of the target's pose shared
+    by its frames (the MCS error of the still target, the extractor's view of it), with
+    ``cov(delta_g) = lam * diag(I3 / HOLD_BASELINE_M^2, I3)``.
+
+    Returns ``(sigma_w^2, [M_g], data)``: the within-hold variance (the residuals left after
+    fitting every hold's own ``delta_g``), ``M_g = Js_g' Jd_g`` per hold (the sandwich's
+    pieces), and ``(z, A0, K)``: the residuals in the holds' pose directions (after the
+    sensor's own fit) with ``cov(z) = sigma_w^2 A0 + lam K`` - None with fewer than two holds."""
     holds = sorted(set(hold_of_row))
     Jd = np.zeros_like(Js)
     for i in set(obs_of_row):
         rows = obs_of_row == i
         Jd[rows] = -Js[rows] @ Ads[i]
+    Dh = np.sqrt(np.r_[np.full(3, 1.0 / HOLD_BASELINE_M ** 2), np.ones(3)])
     n = len(r)
-    P, ranks, Ms, within_sq, within_dof = [], [], [], 0.0, 0
+    projs, Ms, within_sq, within_dof, q, a, bases = [], [], 0.0, 0, 0.0, 0.0, []
     for g in holds:
         rows = hold_of_row == g
         Jg = Jd[rows]
-        pinv = np.linalg.pinv(Jg.T @ Jg, rcond=1e-9)
-        rank = int(np.linalg.matrix_rank(Jg.T @ Jg, tol=1e-9 * max(np.abs(Jg).max(), 1e-300) ** 2))
-        Pg = np.zeros((6, n))
-        Pg[:, rows] = -pinv @ Jg.T
-        d = Pg @ r
-        within_sq += float(np.sum((r[rows] + Jg @ d) ** 2))
+        G = Jg.T @ Jg
+        pinv = np.linalg.pinv(G, rcond=1e-9)
+        rank = int(np.linalg.matrix_rank(G, tol=1e-9 * max(float(np.abs(G).max()), 1e-300)))
+        fitted = Jg @ (pinv @ (Jg.T @ r[rows]))
+        U, sv, _ = np.linalg.svd(Jg, full_matrices=False)
+        basis = np.zeros((n, rank))
+        basis[rows] = U[:, :rank]
+        bases.append(basis)
+        within_sq += float(np.sum((r[rows] - fitted) ** 2))
         within_dof += int(np.sum(rows)) - rank
-        P.append(Pg)
+        q += float(np.sum(fitted ** 2))
+        Asg = Js[rows].T @ Js[rows]
+        a += rank - float(np.trace(C @ Asg))
+        projs.append((rows, Jg, pinv))
         Ms.append(Js[rows].T @ Jg)
     s2w = within_sq / within_dof if within_dof > 0 else float(np.sum(r * r)) / max(n - 6, 1)
     if len(holds) < 2:
-        return s2w, 0.0, 0.0, Ms, None
-
-    def residualise(X):  # (I - H) X with H = Js C Js'
-        return X - Js @ (C @ (Js.T @ X))
-
-    RJ = [residualise(Jd * (hold_of_row == g)[:, None]) for g in holds]
-    sel = (np.r_[np.ones(3), np.zeros(3)].astype(bool), np.r_[np.zeros(3), np.ones(3)].astype(bool))
-    coef = np.zeros((2, 3))
-    obs_q = np.zeros(2)
-    for Pg in P:
-        d = Pg @ r
-        PJ = Pg @ Js
-        noise = Pg @ Pg.T - PJ @ C @ PJ.T  # P (I - H) P'
-        per = [Pg @ X for X in RJ]
-        for k, m in enumerate(sel):
-            obs_q[k] += float(np.sum(d[m] ** 2))
-            coef[k, 0] += float(np.trace(noise[np.ix_(m, m)]))
-            for X in per:
-                coef[k, 1] += float(np.sum(X[m][:, sel[0]] ** 2))
-                coef[k, 2] += float(np.sum(X[m][:, sel[1]] ** 2))
-    rhs = obs_q - coef[:, 0] * s2w
-    B = coef[:, 1:]
-    try:
-        tau = np.linalg.solve(B, rhs)
-    except np.linalg.LinAlgError:
-        tau = np.linalg.lstsq(B, rhs, rcond=None)[0]
-    if np.any(tau < 0):  # the non-negative solution on an edge of the quadrant
-        best = None
-        for k in range(2):
-            t = np.zeros(2)
-            if B[:, k] @ B[:, k] > 0:
-                t[k] = max(0.0, float(B[:, k] @ rhs / (B[:, k] @ B[:, k])))
-            err = float(np.sum((B @ t - rhs) ** 2))
-            if best is None or err < best[0]:
-                best = (err, t)
-        tau = best[1]
-    return s2w, float(tau[0]), float(tau[1]), Ms, (obs_q - coef[:, 0] * s2w, coef[:, 1:])
+        return s2w, Ms, None
+    b = 0.0
+    for g in holds:  # the hold error of hold g, residualised, seen in every hold's projector
+        X = Jd * (hold_of_row == g)[:, None] * Dh[None, :]
+        X = X - Js @ (C @ (Js.T @ X))
+        for rows, Jg, pinv in projs:
+            Y = Jg @ (pinv @ (Jg.T @ X[rows]))
+            b += float(np.sum(Y ** 2))
+    E = np.hstack(bases)
+    F = E - Js @ (C @ (Js.T @ E))  # (I - H) E: the residuals seen in the holds' pose directions
+    A0 = F.T @ F
+    w, V = np.linalg.eigh(0.5 * (A0 + A0.T))
+    keep = w > 1e-9 * max(float(w.max()), 1e-300)
+    V = V[:, keep]
+    z = V.T @ (F.T @ r)
+    K = np.zeros((V.shape[1], V.shape[1]))
+    for g in holds:
+        X = V.T @ (F.T @ (Jd * (hold_of_row == g)[:, None] * Dh[None, :]))
+        K += X @ X.T
+    return s2w, Ms, (z, V.T @ A0 @ V, K)
 
 
 def _fit_statistics(prob: Problem, sol, sensors, observations, holds, options: MocapOptions):
@@ -594,27 +589,47 @@ def _fit_statistics(prob: Problem, sol, sensors, observations, holds, options: M
                for i in set(obs_rows.tolist())}
         A = Js.T @ Js
         Cs = np.linalg.pinv(A, rcond=1e-12)
-        s2w, tr2, tt2, Ms, eq = _hold_moments(Js, rs, obs_rows, hold_rows, Ads, Cs)
+        s2w, Ms, eq = _hold_moments(Js, rs, obs_rows, hold_rows, Ads, Cs)
         scale[s.name] = s2w if s2w > 0 else 1.0
-        stats[s.name] = (cols, A, Cs, (tr2, tt2), Ms, eq, len(set(obs_rows.tolist())))
-    # the MCS errs alike for every target: the sensors' equations pooled, a floor of the MCS's
-    # own accuracy (options.hold_sigma_floor) below, each sensor's own estimate above
-    eqs = [v[5] for v in stats.values() if v[5] is not None]
-    pooled = (0.0, 0.0)
-    if eqs:
-        rhs = np.concatenate([e[0] for e in eqs])
-        B = np.vstack([e[1] for e in eqs])
-        t = np.linalg.lstsq(B, rhs, rcond=None)[0]
-        pooled = (max(float(t[0]), 0.0), max(float(t[1]), 0.0))
+        stats[s.name] = (cols, A, Cs, None, Ms, eq, len(set(obs_rows.tolist())))
+    # the MCS errs alike for every target: lam by maximum likelihood from every sensor's
+    # hold-direction residuals; a floor of the MCS's own accuracy (options.hold_sigma_floor)
+    from scipy.optimize import minimize_scalar
+    from scipy.stats import chi2, f as f_dist
+
+    data = [(stats[n][5], scale[n]) for n in stats if stats[n][5] is not None]
+
+    def nll(lam: float) -> float:
+        out = 0.0
+        for (z, A0, K), s2 in data:
+            S = s2 * A0 + lam * K
+            sign, logdet = np.linalg.slogdet(S)
+            out += 0.5 * (logdet + float(z @ np.linalg.solve(S, z))) if sign > 0 else np.inf
+        return out
+
+    lam_hat = 0.0
+    if data:
+        hi = max(float(sum(z @ z for (z, _, _), _ in data) / max(sum(np.trace(K) for (_, _, K), _ in data), 1e-300)), 1e-18)
+        res = minimize_scalar(lambda t: nll(np.exp(t)), bounds=(np.log(hi) - 30, np.log(hi) + 5), method="bounded")
+        lam_hat = float(np.exp(res.x)) if res.fun < nll(0.0) else 0.0
     floor_r, floor_t = options.hold_sigma_floor
+    lam_used = max(lam_hat, floor_t ** 2, (floor_r * HOLD_BASELINE_M) ** 2)
+    # few holds estimate lam poorly (nu degrees of freedom, from its Fisher information):
+    # widen the hold part so that a 6-DOF region holds the truth as often as it says
+    info = 0.0
+    for (z, A0, K), s2 in data:
+        SK = np.linalg.solve(s2 * A0 + lam_used * K, K)
+        info += 0.5 * float(np.sum(SK * SK.T))
+    nu = 2.0 * lam_used ** 2 * info
+    small = float(6.0 * f_dist.ppf(0.95, 6, nu) / chi2.ppf(0.95, 6)) if 0.5 < nu < 1e6 else 1.0
     for s in sensors:
-        cols, A, Cs, own, Ms, eq, n_obs = stats[s.name]
-        tr2 = max(own[0], pooled[0], floor_r ** 2)
-        tt2 = max(own[1], pooled[1], floor_t ** 2)
+        cols, A, Cs, _, Ms, eq, n_obs = stats[s.name]
+        tt2 = lam_used
+        tr2 = tt2 / HOLD_BASELINE_M ** 2
         naive = scale[s.name] * Cs
         if eq is not None:
             Psi = np.diag([tr2] * 3 + [tt2] * 3)
-            meat = scale[s.name] * A + sum(M @ Psi @ M.T for M in Ms)
+            meat = scale[s.name] * A + small * sum(M @ Psi @ M.T for M in Ms)
             cov = Cs @ meat @ Cs
         else:  # one hold: its frames may be copies of each other
             cov = naive * max(1.0, float(n_obs))

@@ -380,3 +380,33 @@ def test_a_hand_measured_guess_reaches_the_good_answer(scene, run, tmp_path):
         assert dt < 1.0 and dr < 0.05, (name, dt, dr)
     assert r.passes >= 2
     assert r.fit is not None and set(r.fit.sensors) == set(good.final)
+
+
+def test_residuals_far_beyond_the_configured_noise_are_refused():
+    # a camera's corners with 2 px noise, calibrated as if they had 0.1 px: refused (a sensor
+    # matched to the wrong part of its target scatters the same way); told 1 px: accepted
+    from rigcal.dataset import SensorKind
+    from rigcal.errors import ConvergenceError
+    from rigcal.mocap.pipeline import refuse_inconsistent
+    from rigcal.problem.mocap import MocapSensor, TargetObservation, calibrate_mocap_fit
+    from rigcal.sim.mocap import CAMERA, Placement, paper_rig, sample_target_pose
+
+    rng = np.random.default_rng(2)
+    rig = paper_rig()
+    target = diamond_target(0.5, 0.029, rows=6, cols=7, name="diamond")
+    kp = target.camera_keypoints
+    obs = []
+    for h in range(3):
+        T_rt = sample_target_pose(rig, CAMERA, target, np.eye(4), rng, Placement(distance_range_m=(1.6, 3.0)))
+        T_ct = np.linalg.inv(rig.T_robot_camera) @ T_rt
+        uv, _ = rig.camera.project(kp @ T_ct[:3, :3].T + T_ct[:3, 3])
+        obs.append(TargetObservation("camera", "diamond", h, T_rt, uv + rng.normal(0, 2.0, uv.shape), kp))
+    for sigma, refused in ((0.1, True), (1.0, False)):
+        cam = MocapSensor("camera", SensorKind.CAMERA, camera=rig.camera, sigma=sigma)
+        fit = calibrate_mocap_fit([cam], obs, {"camera": rig.T_robot_camera})
+        assert 1.7 < fit.sensors["camera"].noise_sigma < 2.3
+        if refused:
+            with pytest.raises(ConvergenceError, match="sensor 'camera': its residuals scatter"):
+                refuse_inconsistent(fit)
+        else:
+            refuse_inconsistent(fit)

@@ -50,7 +50,7 @@ from typing import Any, Callable, Mapping
 import numpy as np
 
 from rigcal.dataset import SensorKind
-from rigcal.errors import InputError
+from rigcal.errors import ConvergenceError, InputError
 from rigcal.extract.guidance import camera_view, lidar_view, motion_check
 from rigcal.extract.result import NO_CLUSTER, NO_CONTOUR, NO_POSE_DATA, TARGET_MOVING, ExtractionFailure
 from rigcal.geometry.se3 import invert, transform_points
@@ -74,6 +74,7 @@ __all__ = [
     "diagnostics_csv_text",
     "observation_residual",
     "read_mocap_streams",
+    "refuse_inconsistent",
     "run_mocap",
     "summary_rows",
     "write_mocap_outputs",
@@ -482,6 +483,8 @@ def _overlay_wanted(chosen: list[OverlayInput], T_rt: np.ndarray, limit: int) ->
 
 
 _MAX_PASSES = 4
+#: a sensor whose residuals scatter by more than this many times its configured sigma is refused
+_MAX_NOISE_RATIO = 5.0
 _WIDEN = 4.0
 _SETTLED_M = 0.002
 _SETTLED_RAD = math.radians(0.1)
@@ -598,6 +601,23 @@ def _check_kept(config: MocapConfig, sensors, diagnostics, observations, frames_
             )
 
 
+def refuse_inconsistent(fit: MocapFit, source: str = "mocap") -> None:
+    """Raise ConvergenceError when a sensor's residuals scatter by more than
+    ``_MAX_NOISE_RATIO`` times its configured sigma: its measurements fit no single pose (a
+    wrong match of the target - a ring taken for the plate, a grid ordered wrongly -, wrong
+    intrinsics or a far too small sigma), so no calibration is returned rather than a confident
+    wrong one."""
+    bad = {n: f for n, f in fit.sensors.items() if f.noise_sigma > _MAX_NOISE_RATIO * f.sigma_nominal}
+    if bad:
+        raise ConvergenceError(
+            f"{source}: " + "; ".join(
+                f"sensor '{n}': its residuals scatter by {f.noise_sigma:.3g} {f.unit}, more than "
+                f"{_MAX_NOISE_RATIO:g} times its configured sigma {f.sigma_nominal:g} {f.unit}"
+                for n, f in bad.items())
+            + ": its measurements fit no single pose (a wrong match of the target, wrong "
+              "intrinsics or a far too small sigma); no calibration is returned")
+
+
 def run_mocap(config: MocapConfig, progress: Callable[[int, int], None] | None = None
               ) -> MocapRun:
     """Run the pipeline of the module docstring; ``progress(done, total)`` is called after
@@ -645,6 +665,7 @@ def run_mocap(config: MocapConfig, progress: Callable[[int, int], None] | None =
         ctx.initial = {n: np.array(final[n]) for n in sensors}
         ctx.widen = {}
     assert fit is not None
+    refuse_inconsistent(fit, config.source)
     result = fit.result
     final = {n: e.T_reference_sensor for n, e in result.sensors.items()}
 

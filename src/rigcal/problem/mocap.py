@@ -157,8 +157,8 @@ class MocapOptions:
     board_sigma_m: float = 0.01
     #: (rotation [rad], translation [m]): the least per-hold error of a still target's MCS pose
     #: the uncertainty assumes (a few holds cannot show a small one): a Vicon-class system
-    #: tracks a 0.5 m body to about 1 mrad and 0.5 mm
-    hold_sigma_floor: tuple[float, float] = (0.001, 0.0005)
+    #: tracks a still 0.5 m body to about 0.5 mrad and 0.25 mm from hold to hold
+    hold_sigma_floor: tuple[float, float] = (0.0005, 0.00025)
 
     def __post_init__(self) -> None:
         if self.correspondences not in CORRESPONDENCES:
@@ -576,7 +576,6 @@ def _fit_statistics(prob: Problem, sol, sensors, observations, holds, options: M
         row_sensor += [b.sensor if ours else None] * (b.size * b.dim)
     row_obs = np.concatenate(row_obs + [np.full(len(r) - m_obs, -1)])
     row_sensor = np.array(row_sensor + [None] * (len(r) - m_obs), dtype=object)
-    C0 = np.linalg.pinv(J.T @ J, rcond=1e-12)
     scale, infl, hold_sigma, blocks, stats = {}, {}, {}, {}, {}
     for s in sensors:
         rows = row_sensor == s.name
@@ -592,47 +591,61 @@ def _fit_statistics(prob: Problem, sol, sensors, observations, holds, options: M
         s2w, Ms, eq = _hold_moments(Js, rs, obs_rows, hold_rows, Ads, Cs)
         scale[s.name] = s2w if s2w > 0 else 1.0
         stats[s.name] = (cols, A, Cs, None, Ms, eq, len(set(obs_rows.tolist())))
-    # the MCS errs alike for every target: lam by maximum likelihood from every sensor's
-    # hold-direction residuals; a floor of the MCS's own accuracy (options.hold_sigma_floor)
+    # the per-hold error's variance lam by maximum likelihood from the sensor's residuals in its
+    # holds' pose directions, at least the MCS's own accuracy (options.hold_sigma_floor)
     from scipy.optimize import minimize_scalar
     from scipy.stats import chi2, f as f_dist
 
-    data = [(stats[n][5], scale[n]) for n in stats if stats[n][5] is not None]
+    def ml(data) -> tuple[float, float]:
+        """(lam, Fisher information) by maximum likelihood from ``[((z, A0, K), s2)]``."""
+        if not data:
+            return 0.0, 0.0
 
-    def nll(lam: float) -> float:
-        out = 0.0
+        def nll(lam: float) -> float:
+            out = 0.0
+            for (z, A0, K), s2 in data:
+                S = s2 * A0 + lam * K
+                sign, logdet = np.linalg.slogdet(S)
+                out += 0.5 * (logdet + float(z @ np.linalg.solve(S, z))) if sign > 0 else np.inf
+            return out
+
+        scale_k = sum(np.trace(K) for (_, _, K), _ in data)
+        hi = max(float(sum(z @ z for (z, _, _), _ in data) / max(scale_k, 1e-300)), 1e-18)
+        res = minimize_scalar(lambda t: nll(np.exp(t)), bounds=(np.log(hi) - 30, np.log(hi) + 5),
+                              method="bounded")
+        lam = float(np.exp(res.x)) if res.fun < nll(0.0) else 0.0
+        info = 0.0
         for (z, A0, K), s2 in data:
-            S = s2 * A0 + lam * K
-            sign, logdet = np.linalg.slogdet(S)
-            out += 0.5 * (logdet + float(z @ np.linalg.solve(S, z))) if sign > 0 else np.inf
-        return out
+            SK = np.linalg.solve(s2 * A0 + lam * K, K)
+            info += 0.5 * float(np.sum(SK * SK.T))
+        return lam, info
 
-    lam_hat = 0.0
-    if data:
-        hi = max(float(sum(z @ z for (z, _, _), _ in data) / max(sum(np.trace(K) for (_, _, K), _ in data), 1e-300)), 1e-18)
-        res = minimize_scalar(lambda t: nll(np.exp(t)), bounds=(np.log(hi) - 30, np.log(hi) + 5), method="bounded")
-        lam_hat = float(np.exp(res.x)) if res.fun < nll(0.0) else 0.0
     floor_r, floor_t = options.hold_sigma_floor
-    lam_used = max(lam_hat, floor_t ** 2, (floor_r * HOLD_BASELINE_M) ** 2)
-    # few holds estimate lam poorly (nu degrees of freedom, from its Fisher information):
-    # widen the hold part so that a 6-DOF region holds the truth as often as it says
-    info = 0.0
-    for (z, A0, K), s2 in data:
-        SK = np.linalg.solve(s2 * A0 + lam_used * K, K)
-        info += 0.5 * float(np.sum(SK * SK.T))
-    nu = 2.0 * lam_used ** 2 * info
-    small = float(6.0 * f_dist.ppf(0.95, 6, nu) / chi2.ppf(0.95, 6)) if 0.5 < nu < 1e6 else 1.0
+    lam_floor = max(floor_t ** 2, (floor_r * HOLD_BASELINE_M) ** 2)
+    # every sensor its own per-hold error: the MCS's and its extraction's (a camera's corners
+    # err alike in every frame of one view), estimated from its own holds
+    chosen = {}
+    for n in stats:
+        lam, info = ml([(stats[n][5], scale[n])] if stats[n][5] is not None else [])
+        if lam <= lam_floor:
+            chosen[n] = (lam_floor, 1.0)  # a known least value, not an estimate: no widening
+            continue
+        # estimated from few holds (nu degrees of freedom, from its Fisher information): the
+        # hold part widened so that a 6-DOF region holds the truth as often as it says
+        nu = 2.0 * lam ** 2 * info
+        small = float(6.0 * f_dist.ppf(0.95, 6, nu) / chi2.ppf(0.95, 6)) if 0.5 < nu < 1e6 else 1.0
+        chosen[n] = (lam, small)
     for s in sensors:
         cols, A, Cs, _, Ms, eq, n_obs = stats[s.name]
-        tt2 = lam_used
+        tt2, small = chosen[s.name]
         tr2 = tt2 / HOLD_BASELINE_M ** 2
         naive = scale[s.name] * Cs
-        if eq is not None:
-            Psi = np.diag([tr2] * 3 + [tt2] * 3)
-            meat = scale[s.name] * A + small * sum(M @ Psi @ M.T for M in Ms)
-            cov = Cs @ meat @ Cs
-        else:  # one hold: its frames may be copies of each other
-            cov = naive * max(1.0, float(n_obs))
+        Psi = np.diag([tr2] * 3 + [tt2] * 3)
+        # one hold: nothing to estimate its error from, and its frames may be copies of each
+        # other (counted as one)
+        copies = 1.0 if eq is not None else max(1.0, float(n_obs))
+        meat = copies * scale[s.name] * A + small * sum(M @ Psi @ M.T for M in Ms)
+        cov = Cs @ meat @ Cs
         cov = 0.5 * (cov + cov.T)
         infl[s.name] = float(np.trace(cov) / np.trace(naive)) if np.trace(naive) > 0 else 1.0
         hold_sigma[s.name] = (float(np.sqrt(tr2)), float(np.sqrt(tt2)))
@@ -650,7 +663,6 @@ def _fit_statistics(prob: Problem, sol, sensors, observations, holds, options: M
     C = D[:, None] * C * D[None, :]
     for name, (cols, cov, naive) in blocks.items():
         C[np.ix_(cols, cols)] = cov
-    del C0
 
     def joint(names):
         cols = np.concatenate([layout.cols[layout.index[n]] for n in names])

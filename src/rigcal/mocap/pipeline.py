@@ -328,9 +328,10 @@ def _expected_view(sensor: SensorSpec, target: Target, T_st: np.ndarray, ctx: _C
                            min_fraction=0.2 if wide else ex.camera_min_fraction_in_view)
     spec = sensor.lidar
     assert spec is not None
+    wide = ctx.widen.get(sensor.name, 1.0) > 1.0
     return lidar_view(T_st, target.template, spec.min_range_m, spec.max_range_m,
                       spec.elevation_fov_rad, spec.azimuth_fov_rad,
-                      ex.lidar_min_fraction_in_view)
+                      0.0 if wide else ex.lidar_min_fraction_in_view)
 
 
 def _wide_checkerboard(frame: Any, sensor: SensorSpec, target: Target, T_st: np.ndarray):
@@ -380,7 +381,7 @@ def _extract(frame: Any, sensor: SensorSpec, target: Target, T_st: np.ndarray, c
         frame, target, T_st, ctx.prepared[target.name], lidar=sensor.lidar, uncertainty=unc,
         crop_pad_m=ex.crop_pad_m, on_template_m=ex.on_template_m,
         min_cluster_points=ex.min_cluster_points,
-        min_fraction_in_view=ex.lidar_min_fraction_in_view, sensor=sensor.name,
+        min_fraction_in_view=0.0 if w > 1.0 else ex.lidar_min_fraction_in_view, sensor=sensor.name,
         t_ns=frame.t_ns,
     )
 
@@ -482,7 +483,7 @@ def _overlay_wanted(chosen: list[OverlayInput], T_rt: np.ndarray, limit: int) ->
     return True
 
 
-_MAX_PASSES = 4
+_MAX_PASSES = 5
 #: a sensor whose residuals scatter by more than this many times its configured sigma is refused
 _MAX_NOISE_RATIO = 5.0
 _WIDEN = 4.0
@@ -657,7 +658,18 @@ def run_mocap(config: MocapConfig, progress: Callable[[int, int], None] | None =
             continue
         _check_kept(config, sensors, diagnostics, observations, frames_read, ctx.widen)
         observations = _label_holds(observations, ctx)
-        fit = calibrate_mocap_fit(mocap_sensors, observations, ctx.initial, templates, config.options)
+        try:
+            fit = calibrate_mocap_fit(mocap_sensors, observations, ctx.initial, templates, config.options)
+        except ConvergenceError:
+            # too little seen to determine a pose (e.g. the lidar kept a single hold, the
+            # others predicted out of its view): search the sensors with few holds wider
+            holds = Counter(o.sensor for o in {(o.sensor, o.hold): o for o in observations}.values())
+            few = [n for n in sensors if holds[n] < 3 and ctx.widen.get(n, 1.0) < _WIDEN]
+            if not few or attempt == _MAX_PASSES - 1:
+                raise
+            for n in few:
+                ctx.widen[n] = _WIDEN
+            continue
         final = {n: e.T_reference_sensor for n, e in fit.result.sensors.items()}
         moved = [n for n in sensors if not _close(final[n], ctx.initial[n])]
         if not moved or attempt == _MAX_PASSES - 1:

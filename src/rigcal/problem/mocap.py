@@ -576,7 +576,7 @@ def _fit_statistics(prob: Problem, sol, sensors, observations, holds, options: M
         row_sensor += [b.sensor if ours else None] * (b.size * b.dim)
     row_obs = np.concatenate(row_obs + [np.full(len(r) - m_obs, -1)])
     row_sensor = np.array(row_sensor + [None] * (len(r) - m_obs), dtype=object)
-    scale, infl, hold_sigma, blocks, stats = {}, {}, {}, {}, {}
+    scale, infl, hold_sigma, blocks, stats, determined = {}, {}, {}, {}, {}, {}
     for s in sensors:
         rows = row_sensor == s.name
         cols = layout.cols[layout.index[s.name]]
@@ -587,6 +587,8 @@ def _fit_statistics(prob: Problem, sol, sensors, observations, holds, options: M
         Ads = {int(i): adjoint(invert(sol.poses[s.name]) @ observations[int(i)].T_robot_target)
                for i in set(obs_rows.tolist())}
         A = Js.T @ Js
+        wA = np.linalg.eigvalsh(0.5 * (A + A.T)) if A.size else np.zeros(1)
+        determined[s.name] = bool(np.all(np.isfinite(wA)) and wA.max() > 0 and wA.min() > 1e-12 * wA.max())
         Cs = np.linalg.pinv(A, rcond=1e-12)
         s2w, Ms, eq = _hold_moments(Js, rs, obs_rows, hold_rows, Ads, Cs)
         scale[s.name] = s2w if s2w > 0 else 1.0
@@ -646,7 +648,8 @@ def _fit_statistics(prob: Problem, sol, sensors, observations, holds, options: M
         copies = 1.0 if eq is not None else max(1.0, float(n_obs))
         meat = copies * scale[s.name] * A + small * sum(M @ Psi @ M.T for M in Ms)
         cov = Cs @ meat @ Cs
-        cov = 0.5 * (cov + cov.T)
+        w_, V_ = np.linalg.eigh(0.5 * (cov + cov.T))
+        cov = (V_ * np.clip(w_, 0.0, None)) @ V_.T  # rounding leaves tiny negative ones
         infl[s.name] = float(np.trace(cov) / np.trace(naive)) if np.trace(naive) > 0 else 1.0
         hold_sigma[s.name] = (float(np.sqrt(tr2)), float(np.sqrt(tt2)))
         blocks[s.name] = (cols, cov, naive)
@@ -673,7 +676,7 @@ def _fit_statistics(prob: Problem, sol, sensors, observations, holds, options: M
             out[np.ix_(idx, idx)] = C[np.ix_(c, c)]
         return out
 
-    return scale, infl, hold_sigma, joint
+    return scale, infl, hold_sigma, joint, determined
 
 
 def _matches(prob: Problem, sol, sensors, observations, scale) -> dict[str, dict[str, tuple[int, int]]]:
@@ -798,7 +801,7 @@ def calibrate_mocap_fit(
     holds = hold_labels(observations)
     coupled = options.target_pose_sigma is not None or boards is not None
     with threadpool_limits(limits=1):
-        scale, infl, hsig, joint = _fit_statistics(prob, sol, sensors, observations, holds, options)
+        scale, infl, hsig, joint, determined = _fit_statistics(prob, sol, sensors, observations, holds, options)
         if coupled or any(abs(np.log(v)) > np.log(4.0) for v in scale.values()):
             # every sensor weighted by its own noise (and the robust loss's scale with it)
             factor = {n: float(np.sqrt(v)) for n, v in scale.items()}
@@ -809,7 +812,7 @@ def calibrate_mocap_fit(
             if sol2.converged:
                 sol = sol2
                 poses = {s.name: sol.poses[s.name] for s in sensors}
-            s2, infl, hsig, joint = _fit_statistics(prob, sol, sensors, observations, holds, options)
+            s2, infl, hsig, joint, determined = _fit_statistics(prob, sol, sensors, observations, holds, options)
             scale = {n: scale[n] * s2[n] for n in scale}
             prob = prob.with_observations(tuple(
                 b.with_sigma(b.sigma / factor[b.sensor]) if b.label.startswith(ROBOT) else b
@@ -830,11 +833,11 @@ def calibrate_mocap_fit(
     matches = _matches(prob, sol, sensors, observations, scale)
     for s in sensors:
         cov = joint([s.name])
-        ev = np.linalg.eigvalsh(0.5 * (cov + cov.T))
-        if not np.all(np.isfinite(cov)) or ev.min() <= 1e-30 * max(ev.max(), 1e-300):
+        if not determined[s.name] or not np.all(np.isfinite(cov)):
             raise ConvergenceError(
-                f"sensor '{s.name}': its measurements do not determine its pose (the covariance is "
-                f"singular: smallest eigenvalue {ev.min():.3g}); no estimate is returned")
+                f"sensor '{s.name}': its measurements do not determine its pose (their information "
+                f"matrix is singular: too few measured points, or none that depend on the pose); "
+                f"no estimate is returned")
         estimates[s.name] = SensorEstimate(
             name=s.name, kind=s.kind, frame_id=s.frame_id, T_reference_sensor=poses[s.name].copy(),
             covariance=cov, std=pose_std(poses[s.name], cov),

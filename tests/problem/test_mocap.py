@@ -393,3 +393,23 @@ def _err(T, T_true):
     dt = float(np.linalg.norm(T[:3, 3] - T_true[:3, 3]))
     dr = float(np.degrees(np.linalg.norm(so3_log(T_true[:3, :3].T @ T[:3, :3]))))
     return dt, dr
+
+
+def test_a_lidar_that_saw_one_plate_is_refused_not_converged():
+    # every point on one flat plate: its in-plane position and the turn about its normal are
+    # not determined - refused with the reason, never a result with a made-up std
+    from rigcal.sim.mocap import paper_rig
+    from rigcal.targets.templates import diamond_target
+
+    rig = paper_rig()
+    target = diamond_target(0.5, 0.029, rows=6, cols=7, name="diamond")
+    T_rt = from_rt(matrix_from_rpy(np.radians([90.0, 0.0, -90.0])), [2.5, 0.0, 0.7])
+    rng = np.random.default_rng(6)
+    uv = rng.uniform(-0.15, 0.15, (300, 2))
+    pts_t = np.column_stack([uv, np.zeros(len(uv))]) + target.template.mean(axis=0)
+    T_lt = invert(rig.T_robot_lidar) @ T_rt
+    obs = [TargetObservation("lidar", "diamond", k, T_rt, transform_points(T_lt, pts_t)) for k in range(3)]
+    lidar = MocapSensor("lidar", SensorKind.LIDAR, sigma=0.01)
+    with pytest.raises(ConvergenceError, match="do not determine its pose"):
+        calibrate_mocap([lidar], obs, {"lidar": rig.T_robot_lidar},
+                        {"diamond": TargetSurface.of(target)})

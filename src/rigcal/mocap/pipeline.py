@@ -338,7 +338,6 @@ def _wide_checkerboard(frame: Any, sensor: SensorSpec, target: Target, T_st: np.
     """The whole image searched for the board, its corners ordered like the prediction's
     (however far off: the guess only has to tell the grid's symmetries apart)."""
     from rigcal.extract.camera import extract_checkerboard, order_grid
-    from rigcal.extract.result import Measurement
 
     dims = target.dims
     size = (int(dims["cols"]), int(dims["rows"]))

@@ -480,19 +480,6 @@ def _pnp_start(sensor: MocapSensor, obs: Sequence[TargetObservation]) -> np.ndar
     return cands[int(np.argmin(cost))]
 
 
-def _row_labels(prob: Problem, holds: list[str]):
-    """Per Jacobian row of the observation batches: its sensor (None for board pairs) and
-    hold; and per batch item the observation index."""
-    sensor, hold = [], []
-    for b in prob.observations:
-        ours = b.label.startswith(ROBOT)
-        for i in b.board:
-            for _ in range(b.dim):
-                sensor.append(b.sensor if ours else None)
-                hold.append(holds[int(i)] if ours else None)
-    return sensor, hold
-
-
 def _hold_moments(Js, r, obs_of_row, hold_of_row, Ads, C):
     """Within-hold noise and the between-hold error's moment equation of one sensor (its rows).
 

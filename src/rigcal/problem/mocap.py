@@ -166,6 +166,10 @@ class MocapOptions:
                               f"got {self.correspondences!r}")
         if not int(self.max_correspondence_iterations) >= 1:
             raise ConfigError("mocap options: max_correspondence_iterations must be >= 1")
+        floor = tuple(float(v) for v in self.hold_sigma_floor)
+        if len(floor) != 2 or not all(np.isfinite(v) and v >= 0 for v in floor):
+            raise ConfigError("mocap options: hold_sigma_floor must be (rotation_rad, translation_m) >= 0")
+        object.__setattr__(self, "hold_sigma_floor", floor)
 
 
 def _check(sensors: Sequence[MocapSensor], observations: Sequence[TargetObservation], initial, templates):

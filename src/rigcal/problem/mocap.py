@@ -41,7 +41,7 @@ from scipy.spatial import cKDTree
 from threadpoolctl import threadpool_limits
 
 from rigcal.dataset import SensorKind
-from rigcal.errors import ConfigError, ConvergenceError, InputError
+from rigcal.errors import ConfigError, ConvergenceError, InputError, RigcalError
 from rigcal.geometry.se3 import invert
 from rigcal.geometry.so3 import so3_log
 from rigcal.problem.residuals import MODEL_CAMERA, MODEL_POINT, MODEL_SURFACE
@@ -386,7 +386,7 @@ class MocapSensorFit:
     per-hold error of the target pose (rotation [rad], translation [m]) estimated from how the
     holds scatter; ``holds``,
     ``observations``, ``residuals``: counts behind them; ``matches[target] = (within, total)``:
-    measurements within 3 noise sigma of the fitted model, per target; ``covariance_naive``
+    measurements within 3 configured sigma of the fitted model, per target; ``covariance_naive``
     (6, 6): the covariance with one noise scale shared by every sensor and every frame counted
     as independent (what was reported before); ``start``: ``"initial"`` or ``"pnp"`` (a camera
     whose initial pose put the target outside the image, started from PnP of its corners)."""
@@ -482,6 +482,26 @@ def _pnp_start(sensor: MocapSensor, obs: Sequence[TargetObservation]) -> np.ndar
 
     cost = [sum(dist(a, b) for b in cands) for a in cands]
     return cands[int(np.argmin(cost))]
+
+
+def _same_pose(A: np.ndarray, B: np.ndarray, metres: float = 0.002, radians: float = 0.002) -> bool:
+    return (float(np.linalg.norm(A[:3, 3] - B[:3, 3])) <= metres
+            and float(np.linalg.norm(so3_log(A[:3, :3].T @ B[:3, :3]))) <= radians)
+
+
+def _better_start(sensor: MocapSensor, obs, T_a: np.ndarray, T_b: np.ndarray, surfaces, options):
+    """``T_b`` when the camera's own problem solved from it ends at a lower cost than solved
+    from ``T_a`` (by more than rounding), else None."""
+    costs = []
+    for T in (T_a, T_b):
+        prob = _build([sensor], obs, {sensor.name: T}, surfaces, options)
+        try:
+            sol = solve(prob, loss=options.loss, loss_scale=options.loss_scale)
+        except RigcalError:
+            costs.append(np.inf)
+            continue
+        costs.append(sol.cost if sol.converged else np.inf)
+    return T_b if costs[1] < 0.999 * costs[0] else None
 
 
 def _hold_moments(Js, r, obs_of_row, hold_of_row, Ads, C):
@@ -675,7 +695,7 @@ def _matches(prob: Problem, sol, sensors, observations, scale) -> dict[str, dict
     for b, raw in zip(prob.observations, sol.residuals):
         if not b.label.startswith(ROBOT):
             continue
-        lim = 3.0 * np.sqrt(scale[b.sensor] * b.dim)
+        lim = 3.0 * np.sqrt(b.dim)  # residuals whitened by the configured sigma
         e = np.linalg.norm(raw, axis=1)
         for i, ok in zip(b.board, e <= lim):
             t = observations[int(i)].target
@@ -744,6 +764,15 @@ def calibrate_mocap_fit(
         own = [o for o in observations if o.sensor == s.name]
         valid = _valid_fraction(s, own, poses[s.name])
         if valid >= MIN_VALID_PROJECTION:
+            # a second start from PnP of the corners: a plate seen in few views has a mirrored
+            # pose that fits almost as well, and a far-off start can end there; the start whose
+            # solution fits better is kept
+            if all(o.keypoints_target is not None for o in own):
+                T = _pnp_start(s, own)
+                if T is not None and not _same_pose(T, poses[s.name]):
+                    better = _better_start(s, own, poses[s.name], T, surfaces, options)
+                    if better is not None:
+                        poses[s.name], starts[s.name] = better, "pnp"
             continue
         T = _pnp_start(s, own)
         if T is None or _valid_fraction(s, own, T) < MIN_VALID_PROJECTION:

@@ -311,3 +311,25 @@ def test_extract_by_target_definition(sim, rays):
                              on_template_m=0.01)
     assert isinstance(m, Measurement), m
     assert m.keypoint_index is None and len(m.keypoints) >= 0.9 * np.sum(which == 0)
+
+
+def test_a_fit_that_explains_part_of_the_cluster_is_refused(sim, rays, diamond_template):
+    """A plate with two smaller plates touching it on either side: one cluster, of which the
+    fitted template holds only about half (like a plate laid along one ring from a far-off
+    guess): refused, not measured."""
+    rng = np.random.default_rng(8)
+    T = sim.facing_pose([2.5, 0.0, 0.0])
+    ranges = [sim.hit_polygon(T, sim.DIAMOND_CORNERS, rays)]
+    for side in (1.0, -1.0):
+        Td = T.copy()
+        Td[:3, 3] += [0.0, 0.5 * side, 0.0]
+        ranges.append(sim.hit_polygon(Td, sim.DIAMOND_CORNERS * 0.7, rays))
+    pts, _ = sim.scan(ranges, rays, rng)
+    kw = dict(lidar=VLP16, uncertainty=UNCERTAINTY)
+    r = extract_lidar_target(pts, T, diamond_template, **kw)
+    assert isinstance(r, ExtractionFailure) and r.reason == "icp_diverged", r
+    assert "partial match" in r.detail
+    # the same cluster is measured when a partial fit is allowed: the guard is what refuses it
+    r = extract_lidar_target(pts, T, diamond_template, min_on_template_fraction=0.0, **kw)
+    assert isinstance(r, Measurement)
+    assert r.quality["on_template_points"] < 0.6 * r.quality["cluster_points"]

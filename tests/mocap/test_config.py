@@ -260,3 +260,11 @@ def test_yaml_errors_name_the_file(folder):
         _parse(folder, "- 1\n")
     with pytest.raises(InputError, match=r"mocap\.yaml: mocap configuration not found"):
         load_mocap_config(folder / "missing" / "mocap.yaml")
+
+
+def test_hold_sigma_floor_is_read_and_checked(tmp_path):
+    from rigcal.mocap.config import _options
+
+    assert _options({"hold_sigma_floor": [0.0, 0.001]}, "m.yaml").hold_sigma_floor == (0.0, 0.001)
+    with pytest.raises(InputError, match="hold_sigma_floor"):
+        _options({"hold_sigma_floor": [-1.0, 0.001]}, "m.yaml")

@@ -51,6 +51,7 @@ from rigcal.extract.icp import (
     principal_extents,
 )
 from rigcal.extract.result import (
+    ICP_DIVERGED,
     NO_CLUSTER,
     NO_POINTS_IN_CROP,
     ExtractionFailure,
@@ -235,6 +236,7 @@ def extract_lidar_target(
     score_weights: tuple[float, float] = (1.0, 1.0),
     icp_options: IcpOptions | None = None,
     on_template_m: float = 0.02,
+    min_on_template_fraction: float = 0.6,
     min_fraction_in_view: float = 0.5,
     sensor: str = "",
     t_ns: int | None = None,
@@ -250,7 +252,10 @@ def extract_lidar_target(
     ``crop_box_target``: ``(min_xyz, max_xyz)`` in the target frame (default: the template's
     bounds plus ``crop_pad_m``), grown by ``uncertainty``. ``ground_plane``: ``(n, d)`` with
     ``n . p + d = 0`` in the lidar frame; points within ``ground_clearance_m`` of it are dropped.
-    ``on_template_m``: the distance within which a scan point counts as on the fitted template.
+    ``on_template_m``: the distance within which a scan point counts as on the fitted template;
+    a fit that leaves more than ``1 - min_on_template_fraction`` of the cluster off the template
+    explains only part of it (e.g. the plate laid along one ring of a far-off guess) and is
+    refused as ``icp_diverged``.
 
     Returns a :class:`Measurement` (``keypoints`` (K, 3) with ``keypoint_index`` 0..K-1, or the
     on-template points (M, 3) without; ``T_sensor_target`` the ICP pose; extras
@@ -344,6 +349,13 @@ def extract_lidar_target(
     T = fit.T_sensor_target
     dT = np.linalg.inv(T_exp) @ T
     on = fit.distances_m <= on_template_m
+    if np.mean(on) < min_on_template_fraction:
+        return ExtractionFailure(
+            sensor, t_ns, ICP_DIVERGED,
+            f"the fitted template holds only {int(np.sum(on))} of the cluster's {len(on)} points "
+            f"within {on_template_m:g} m (a partial match, e.g. one ring; need "
+            f"{100 * min_on_template_fraction:.0f} %)",
+        )
     quality.update(
         icp_rms_m=fit.rms_m,
         icp_inlier_fraction=fit.inlier_fraction,

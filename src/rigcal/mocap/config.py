@@ -508,6 +508,12 @@ def _options(raw: Any, source: str) -> MocapOptions:
                 raise InputError(f"{w}: expected [rotation_rad, translation_m] (two numbers "
                                  f"> 0) or null, got {value!r}")
             kw[key] = (float(value[0]), float(value[1]))
+        elif key == "hold_sigma_floor":
+            if not (isinstance(value, list) and len(value) == 2
+                    and all(is_finite_number(v) and v >= 0 for v in value)):
+                raise InputError(f"{w}: expected [rotation_rad, translation_m] (two numbers "
+                                 f">= 0), got {value!r}")
+            kw[key] = (float(value[0]), float(value[1]))
         elif isinstance(default, int) and not isinstance(default, bool):
             if not isinstance(value, int) or isinstance(value, bool) or value < 0:
                 raise InputError(f"{w}: expected an integer >= 0, got {value!r}")

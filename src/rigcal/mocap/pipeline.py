@@ -50,15 +50,15 @@ from typing import Any, Callable, Mapping
 import numpy as np
 
 from rigcal.dataset import SensorKind
-from rigcal.errors import InputError
+from rigcal.errors import ConvergenceError, InputError
 from rigcal.extract.guidance import camera_view, lidar_view, motion_check
-from rigcal.extract.result import NO_CLUSTER, NO_CONTOUR, NO_POSE_DATA, ExtractionFailure
+from rigcal.extract.result import NO_CLUSTER, NO_CONTOUR, NO_POSE_DATA, TARGET_MOVING, ExtractionFailure
 from rigcal.geometry.se3 import invert, transform_points
 from rigcal.geometry.so3 import so3_log
 from rigcal.mocap.config import MocapConfig, PoseSourceSpec, SensorSpec, TargetSpec
 from rigcal.mocap.extrinsics import Extrinsics
 from rigcal.mocap.streams import PoseStream, interpolate
-from rigcal.problem.mocap import MocapSensor, TargetObservation, calibrate_mocap
+from rigcal.problem.mocap import MocapFit, MocapSensor, TargetObservation, calibrate_mocap_fit
 from rigcal.targets.surface import TargetSurface
 from rigcal.problem.result import CalibrationResult
 from rigcal.report.overlay import OverlayInput
@@ -74,6 +74,7 @@ __all__ = [
     "diagnostics_csv_text",
     "observation_residual",
     "read_mocap_streams",
+    "refuse_inconsistent",
     "run_mocap",
     "summary_rows",
     "write_mocap_outputs",
@@ -154,6 +155,11 @@ class MocapRun:
     overlays: tuple[OverlayInput, ...] = ()
     mocap_frame: str = ""
     first_t_ns: int = 0
+    #: per-sensor fit statistics (noise sigma, reduced chi2, hold inflation, per-target
+    #: matches: :class:`rigcal.problem.mocap.MocapSensorFit`) in ``fit.sensors``
+    fit: MocapFit | None = None
+    #: extraction passes run (coarse to fine: wider searches, then guided by the calibration)
+    passes: int = 1
 
     @property
     def final(self) -> dict[str, np.ndarray]:
@@ -286,6 +292,8 @@ class _Context:
     targets: dict[str, _PoseLookup]
     initial: dict[str, np.ndarray]
     prepared: dict[str, Any] = field(default_factory=dict)
+    #: per sensor, how much wider than configured the search is (a guess far off: nothing found)
+    widen: dict[str, float] = field(default_factory=dict)
 
 
 def _motion(ctx: _Context, t_ns: int, target: str) -> tuple[bool, str, str]:
@@ -315,18 +323,45 @@ def _motion(ctx: _Context, t_ns: int, target: str) -> tuple[bool, str, str]:
 def _expected_view(sensor: SensorSpec, target: Target, T_st: np.ndarray, ctx: _Context):
     ex = ctx.config.extraction
     if sensor.kind is SensorKind.CAMERA:
+        wide = ctx.widen.get(sensor.name, 1.0) > 1.0
         return camera_view(sensor.camera, T_st, target.camera_points,
-                           min_fraction=ex.camera_min_fraction_in_view)
+                           min_fraction=0.2 if wide else ex.camera_min_fraction_in_view)
     spec = sensor.lidar
     assert spec is not None
+    wide = ctx.widen.get(sensor.name, 1.0) > 1.0
     return lidar_view(T_st, target.template, spec.min_range_m, spec.max_range_m,
                       spec.elevation_fov_rad, spec.azimuth_fov_rad,
-                      ex.lidar_min_fraction_in_view)
+                      0.0 if wide else ex.lidar_min_fraction_in_view)
+
+
+def _wide_checkerboard(frame: Any, sensor: SensorSpec, target: Target, T_st: np.ndarray):
+    """The whole image searched for the board, its corners ordered like the prediction's
+    (however far off: the guess only has to tell the grid's symmetries apart)."""
+    from rigcal.extract.camera import extract_checkerboard, order_grid
+
+    dims = target.dims
+    size = (int(dims["cols"]), int(dims["rows"]))
+    m = extract_checkerboard(frame, sensor.camera, size, target.camera_keypoints, None,
+                             estimate_pose=False, sensor=sensor.name, t_ns=frame.t_ns,
+                             target=target.name)
+    if isinstance(m, ExtractionFailure):
+        return m
+    expected, _ = sensor.camera.project(transform_points(T_st, target.camera_keypoints))
+    if np.all(np.isfinite(expected)):
+        corners, _, _, _ = order_grid(m.keypoints, size, expected)
+        m = replace(m, keypoints=corners)
+    return m
 
 
 def _extract(frame: Any, sensor: SensorSpec, target: Target, T_st: np.ndarray, ctx: _Context):
     ex = ctx.config.extraction
     unc = ex.uncertainty
+    w = ctx.widen.get(sensor.name, 1.0)
+    if w > 1.0:
+        unc = replace(unc, sigma_translation_m=unc.sigma_translation_m * w,
+                      sigma_rotation_rad=unc.sigma_rotation_rad * w)
+        if sensor.kind is SensorKind.CAMERA and target.kind.value == "checkerboard_diamond":
+            return _wide_checkerboard(frame, sensor, target, T_st)
     if sensor.kind is SensorKind.CAMERA:
         from rigcal.extract.camera import extract_target_camera
 
@@ -345,7 +380,7 @@ def _extract(frame: Any, sensor: SensorSpec, target: Target, T_st: np.ndarray, c
         frame, target, T_st, ctx.prepared[target.name], lidar=sensor.lidar, uncertainty=unc,
         crop_pad_m=ex.crop_pad_m, on_template_m=ex.on_template_m,
         min_cluster_points=ex.min_cluster_points,
-        min_fraction_in_view=ex.lidar_min_fraction_in_view, sensor=sensor.name,
+        min_fraction_in_view=0.0 if w > 1.0 else ex.lidar_min_fraction_in_view, sensor=sensor.name,
         t_ns=frame.t_ns,
     )
 
@@ -447,25 +482,25 @@ def _overlay_wanted(chosen: list[OverlayInput], T_rt: np.ndarray, limit: int) ->
     return True
 
 
-def run_mocap(config: MocapConfig, progress: Callable[[int, int], None] | None = None
-              ) -> MocapRun:
-    """Run the pipeline of the module docstring; ``progress(done, total)`` is called after
-    every sensor frame. Raises InputError for unreadable inputs, a sensor without any kept
-    measurement or a target no sensor measured (with the rejection counts), and
-    ConvergenceError when the calibration does not converge."""
+_MAX_PASSES = 5
+#: a sensor whose residuals scatter by more than this many times its configured sigma is refused
+_MAX_NOISE_RATIO = 5.0
+_WIDEN = 4.0
+_SETTLED_M = 0.002
+_SETTLED_RAD = math.radians(0.1)
+
+
+def _close(A: np.ndarray, B: np.ndarray) -> bool:
+    dt = float(np.linalg.norm(A[:3, 3] - B[:3, 3]))
+    dr = float(np.linalg.norm(so3_log(A[:3, :3].T @ B[:3, :3])))
+    return dt <= _SETTLED_M and dr <= _SETTLED_RAD
+
+
+def _extract_all(config: MocapConfig, ctx: _Context, sensors: dict[str, SensorSpec],
+                 progress: Callable[[int, int], None] | None):
+    """One pass over the recording's frames with the guidance in ``ctx``."""
     from rigcal.io.folder import open_any
 
-    robot_stream, target_streams = read_mocap_streams(config)
-    extrinsics = _initial_extrinsics(config)
-    initial = config.initial_T_robot_sensor(extrinsics)
-    ctx = _Context(
-        config=config,
-        robot=_PoseLookup(robot_stream, "mocap.robot", config.max_gap_s),
-        targets={n: _PoseLookup(s, f"mocap.targets.{n}", config.max_gap_s)
-                 for n, s in target_streams.items()},
-        initial=initial,
-    )
-    sensors = {s.name: s for s in config.sensors}
     diagnostics: list[MeasurementDiagnostic] = []
     observations: list[TargetObservation] = []
     overlays: dict[str, list[OverlayInput]] = {s: [] for s in sensors}
@@ -509,7 +544,35 @@ def run_mocap(config: MocapConfig, progress: Callable[[int, int], None] | None =
             done += 1
             if progress is not None:
                 progress(done, total)
+    return diagnostics, observations, overlays, frames_read, first_t
 
+
+_HOLD_M = 0.02
+_HOLD_RAD = math.radians(1.0)
+
+
+def _label_holds(observations: list[TargetObservation], ctx: _Context) -> list[TargetObservation]:
+    """Every observation labelled with its hold: consecutive observations of one target by one
+    sensor while the target stays still in the MCS frame (within 2 cm and 1 deg) share the
+    MCS's error of it, whether or not the robot moves."""
+    order = sorted(range(len(observations)),
+                   key=lambda i: (observations[i].sensor, observations[i].target, observations[i].t_ns))
+    labels = [""] * len(observations)
+    prev, k = None, 0
+    for i in order:
+        o = observations[i]
+        T_mt, _ = ctx.targets[o.target].at(o.t_ns)
+        if prev is None or prev[0] != (o.sensor, o.target) or T_mt is None or prev[1] is None or \
+                float(np.linalg.norm(T_mt[:3, 3] - prev[1][:3, 3])) > _HOLD_M or \
+                float(np.linalg.norm(so3_log(prev[1][:3, :3].T @ T_mt[:3, :3]))) > _HOLD_RAD:
+            k += 1
+        labels[i] = f"{o.target}#{k}"
+        prev = ((o.sensor, o.target), T_mt)
+    return [replace(o, hold=h) for o, h in zip(observations, labels)]
+
+
+def _check_kept(config: MocapConfig, sensors, diagnostics, observations, frames_read,
+                widen: Mapping[str, float]) -> None:
     by_sensor = {s: Counter() for s in sensors}
     by_target = {t: Counter() for t in config.targets}
     for d in diagnostics:
@@ -523,10 +586,12 @@ def run_mocap(config: MocapConfig, progress: Callable[[int, int], None] | None =
             raise InputError(f"{config.source}: sensor '{name}': no frames on topic "
                              f"{spec.topic} in {config.recording}")
         if kept_sensor[name] == 0:
+            wider = (f"; also searched in a {widen[name]:g} times wider window: is its initial "
+                     f"calibration right?" if widen.get(name, 1.0) > 1.0 else "")
             raise InputError(
                 f"{config.source}: sensor '{name}': every measurement was rejected "
                 f"({frames_read[name]} frames x {len(config.targets)} targets; rejections: "
-                f"{_rejection_text(by_sensor[name])}); nothing to calibrate it with"
+                f"{_rejection_text(by_sensor[name])}); nothing to calibrate it with{wider}"
             )
     for name in config.targets:
         if kept_target[name] == 0:
@@ -535,12 +600,84 @@ def run_mocap(config: MocapConfig, progress: Callable[[int, int], None] | None =
                 f"rejections {_rejection_text(by_target[name])}"
             )
 
+
+def refuse_inconsistent(fit: MocapFit, source: str = "mocap") -> None:
+    """Raise ConvergenceError when a sensor's residuals scatter by more than
+    ``_MAX_NOISE_RATIO`` times its configured sigma: its measurements fit no single pose (a
+    wrong match of the target - a ring taken for the plate, a grid ordered wrongly -, wrong
+    intrinsics or a far too small sigma), so no calibration is returned rather than a confident
+    wrong one."""
+    bad = {n: f for n, f in fit.sensors.items() if f.noise_sigma > _MAX_NOISE_RATIO * f.sigma_nominal}
+    if bad:
+        raise ConvergenceError(
+            f"{source}: " + "; ".join(
+                f"sensor '{n}': its residuals scatter by {f.noise_sigma:.3g} {f.unit}, more than "
+                f"{_MAX_NOISE_RATIO:g} times its configured sigma {f.sigma_nominal:g} {f.unit}"
+                for n, f in bad.items())
+            + ": its measurements fit no single pose (a wrong match of the target, wrong "
+              "intrinsics or a far too small sigma); no calibration is returned")
+
+
+def run_mocap(config: MocapConfig, progress: Callable[[int, int], None] | None = None
+              ) -> MocapRun:
+    """Run the pipeline of the module docstring; ``progress(done, total)`` is called after
+    every sensor frame. Raises InputError for unreadable inputs, a sensor without any kept
+    measurement or a target no sensor measured (with the rejection counts), and
+    ConvergenceError when the calibration does not converge."""
+    robot_stream, target_streams = read_mocap_streams(config)
+    extrinsics = _initial_extrinsics(config)
+    initial = config.initial_T_robot_sensor(extrinsics)
+    ctx = _Context(
+        config=config,
+        robot=_PoseLookup(robot_stream, "mocap.robot", config.max_gap_s),
+        targets={n: _PoseLookup(s, f"mocap.targets.{n}", config.max_gap_s)
+                 for n, s in target_streams.items()},
+        initial=initial,
+    )
+    sensors = {s.name: s for s in config.sensors}
+    templates = {n: TargetSurface.of(t.target) for n, t in config.targets.items()}
     mocap_sensors = [
         MocapSensor(s.name, s.kind, camera=s.camera, sigma=s.sigma, frame_id=s.frame_id)
         for s in config.sensors
     ]
-    templates = {n: TargetSurface.of(t.target) for n, t in config.targets.items()}
-    result = calibrate_mocap(mocap_sensors, observations, initial, templates, config.options)
+    # coarse to fine: a sensor that kept nothing is searched again in a wider window; every
+    # pass after the first is guided by the previous calibration, until it no longer moves
+    fit = None
+    for attempt in range(_MAX_PASSES):
+        diagnostics, observations, overlays, frames_read, first_t = _extract_all(
+            config, ctx, sensors, progress if attempt == 0 else None)
+        kept_sensor = Counter(o.sensor for o in observations)
+        # a wider search helps only where something was searched for and not found
+        searched = {d.sensor for d in diagnostics
+                    if not d.kept and d.reason not in (NO_POSE_DATA, TARGET_MOVING)}
+        empty = [n for n in sensors if kept_sensor[n] == 0 and n in searched]
+        if empty and attempt < _MAX_PASSES - 1 and any(ctx.widen.get(n, 1.0) < _WIDEN for n in empty):
+            for n in empty:
+                ctx.widen[n] = _WIDEN
+            continue
+        _check_kept(config, sensors, diagnostics, observations, frames_read, ctx.widen)
+        observations = _label_holds(observations, ctx)
+        try:
+            fit = calibrate_mocap_fit(mocap_sensors, observations, ctx.initial, templates, config.options)
+        except ConvergenceError:
+            # too little seen to determine a pose (e.g. the lidar kept a single hold, the
+            # others predicted out of its view): search the sensors with few holds wider
+            holds = Counter(o.sensor for o in {(o.sensor, o.hold): o for o in observations}.values())
+            few = [n for n in sensors if holds[n] < 3 and ctx.widen.get(n, 1.0) < _WIDEN]
+            if not few or attempt == _MAX_PASSES - 1:
+                raise
+            for n in few:
+                ctx.widen[n] = _WIDEN
+            continue
+        final = {n: e.T_reference_sensor for n, e in fit.result.sensors.items()}
+        moved = [n for n in sensors if not _close(final[n], ctx.initial[n])]
+        if not moved or attempt == _MAX_PASSES - 1:
+            break
+        ctx.initial = {n: np.array(final[n]) for n in sensors}
+        ctx.widen = {}
+    assert fit is not None
+    refuse_inconsistent(fit, config.source)
+    result = fit.result
     final = {n: e.T_reference_sensor for n, e in result.sensors.items()}
 
     it = iter(observations)
@@ -563,6 +700,8 @@ def run_mocap(config: MocapConfig, progress: Callable[[int, int], None] | None =
         overlays=tuple(o for s in sensors for o in overlays[s]),
         mocap_frame=robot_stream.frame_id,
         first_t_ns=int(first_t or 0),
+        fit=fit,
+        passes=attempt + 1,
     )
 
 

@@ -2,6 +2,8 @@
 
 * :mod:`~rigcal.study.mocap_study` - Charron et al.'s simulated motion-capture calibration
   (Tables I-III): diamond and cylinder targets, VLP-16 lidar and pinhole camera.
+* :mod:`~rigcal.study.coverage` - how often the motion-capture calibration's reported 95 %
+  region holds the truth (:func:`~rigcal.study.coverage.mocap_coverage`).
 """
 
 from rigcal.study.mocap_study import (

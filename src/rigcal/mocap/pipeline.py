@@ -58,9 +58,11 @@ from rigcal.geometry.so3 import so3_log
 from rigcal.mocap.config import MocapConfig, PoseSourceSpec, SensorSpec, TargetSpec
 from rigcal.mocap.extrinsics import Extrinsics
 from rigcal.mocap.streams import PoseStream, interpolate
+from rigcal.problem.consistency import mocap_verdict
 from rigcal.problem.mocap import MocapFit, MocapSensor, TargetObservation, calibrate_mocap_fit
 from rigcal.targets.surface import TargetSurface
 from rigcal.problem.result import CalibrationResult
+from rigcal.problem.uncertainty import weak_directions
 from rigcal.report.overlay import OverlayInput
 from rigcal.targets.definition import Target
 
@@ -677,7 +679,8 @@ def run_mocap(config: MocapConfig, progress: Callable[[int, int], None] | None =
         ctx.widen = {}
     assert fit is not None
     refuse_inconsistent(fit, config.source)
-    result = fit.result
+    weak = {n: weak_directions(e.std) for n, e in fit.result.sensors.items() if n in sensors}
+    result = replace(fit.result, verdict=mocap_verdict(fit, weak))
     final = {n: e.T_reference_sensor for n, e in result.sensors.items()}
 
     it = iter(observations)

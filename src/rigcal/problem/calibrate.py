@@ -584,7 +584,9 @@ def calibrate(dataset: Dataset, options: CalibrationOptions = CalibrationOptions
         for name, std in stds.items() if name != reference
     }
     warnings = _warnings(work, mode, reference, fit, options, weak, bounded)
-    pair_check, board_check, _ = pair_checks(work, fit.poses, reference, units, theta, sol.joint_covariance)
+    pair_check, board_check, _ = pair_checks(
+        work, fit.poses, reference, units, theta, sol.joint_covariance, options.outlier_rule
+    )
     noise_model = theta_by_sensor(units, theta)
     result_verdict = verdict(
         pair_check, board_check, sol.rank_deficient, bounded, weak, noise_check(work, noise_model)

@@ -101,3 +101,26 @@ def test_implausible_noise_is_flagged(sim):
     r = calibrate(scaled, CalibrationOptions(mode="fcpe", detect_outliers=False))
     assert r.flagged
     assert {c.name for c in r.verdict.failed} & {"noise", "pairs", "boards"}
+
+
+def _mocap_fit(noise_px: float, within: int):
+    from types import SimpleNamespace
+
+    sensor = SimpleNamespace(
+        noise_sigma=noise_px, sigma_nominal=0.5, unit="px", matches={"diamond": (within, 20)},
+        hold_sigma=(5e-4, 2.5e-4), holds=4,
+    )
+    return SimpleNamespace(sensors={"camera1": sensor})
+
+
+def test_mocap_verdict_flags_noise_and_poor_matches():
+    from rigcal.problem.consistency import mocap_verdict
+
+    ok = mocap_verdict(_mocap_fit(0.55, 19))
+    assert ok.status == "consistent"
+    assert any(c.name == "holds" and c.status == NOTE for c in ok.checks)
+    noisy = mocap_verdict(_mocap_fit(2.0, 19))  # 4 x the configured 0.5 px
+    assert [c.name for c in noisy.failed] == ["noise"] and "camera1" in noisy.failed[0].detail
+    poor = mocap_verdict(_mocap_fit(0.55, 6), {"camera1": ["z (std 80 mm)"]})
+    assert [c.name for c in poor.failed] == ["matches"] and "6 of 20" in poor.failed[0].detail
+    assert any(c.name == "weak" for c in poor.checks)

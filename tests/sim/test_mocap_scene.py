@@ -59,6 +59,7 @@ def test_every_sensor_is_calibrated_to_the_robot_frame(scene, run):
     s, _ = scene
     assert tuple(run.result.sensors) == NAMES and run.result.reference == "robot"
     assert run.result.converged
+    assert run.result.verdict.status == "consistent", run.result.verdict.failed
     errors = {}
     for name in NAMES:
         e0 = pose_error(run.initial[name], s.truth[name])

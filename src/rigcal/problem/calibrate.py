@@ -48,6 +48,7 @@ from rigcal.problem.solver import (
     PoseBlock,
     Problem,
     Solution,
+    combine_solutions,
     linearise,
     merge_independent,
     prepare,
@@ -434,22 +435,9 @@ def _fit_radar_reference(
         tuple(b for p in problems.values() for b in p.observations),
         tuple(b for p in problems.values() for b in p.limits),
     )
-    parts = list(sols.values())
-    sol = Solution(
-        poses=poses,
-        converged=True,
-        status="every pair converged",
-        iterations=max(p.iterations for p in parts),
-        cost=sum(p.cost for p in parts),
-        covariance=cov,
-        columns=columns,
-        residuals=tuple(r for p in parts for r in p.residuals),
-        limit_residuals=tuple(r for p in parts for r in p.limit_residuals),
-        sigma0_sq=float(np.mean([p.sigma0_sq for p in parts])),
-        dof=sum(p.dof for p in parts),
-        gradient_norm=max(p.gradient_norm for p in parts),
-        rank_deficient=any(p.rank_deficient for p in parts),
-        extra={"radar_reference": intervals},
+    sol = combine_solutions(
+        list(sols.values()), poses=poses, covariance=cov, columns=columns,
+        status="every pair converged", extra={"radar_reference": intervals},
     )
     return _Fit(poses, merged, sol, {}, 0, {})
 

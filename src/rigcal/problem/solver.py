@@ -1011,15 +1011,36 @@ def merge_independent(problems: list[Problem], solutions: list[Solution]) -> tup
     poses: dict[str, np.ndarray] = {}
     for sol in solutions:
         poses.update(sol.poses)
-    failed = [s for s in solutions if not s.converged]
-    return merged, Solution(
+    return merged, combine_solutions(
+        solutions,
         poses={name: poses[name] for name in blocks},
-        converged=not failed,
-        status=failed[0].status if failed else "all sub-problems converged",
-        iterations=max(s.iterations for s in solutions),
-        cost=sum(s.cost for s in solutions),
         covariance=scipy.linalg.block_diag(*covs) if covs else np.zeros((0, 0)),
         columns={name: cols[name] for name in blocks},
+        status="all sub-problems converged",
+    )
+
+
+def combine_solutions(
+    solutions: list[Solution],
+    *,
+    poses: dict[str, np.ndarray],
+    covariance: np.ndarray,
+    columns: dict[str, np.ndarray],
+    status: str,
+    extra: dict | None = None,
+) -> Solution:
+    """One :class:`Solution` from independently solved sub-problems: their costs, degrees of
+    freedom and residuals (in order) added up, converged only if all did (else the first
+    failure's status); ``poses``, ``covariance`` and ``columns`` as given."""
+    failed = [s for s in solutions if not s.converged]
+    return Solution(
+        poses=poses,
+        converged=not failed,
+        status=failed[0].status if failed else status,
+        iterations=max(s.iterations for s in solutions),
+        cost=sum(s.cost for s in solutions),
+        covariance=covariance,
+        columns=columns,
         residuals=tuple(r for s in solutions for r in s.residuals),
         limit_residuals=tuple(r for s in solutions for r in s.limit_residuals),
         sigma0_sq=float(np.mean([s.sigma0_sq for s in solutions])),
@@ -1027,6 +1048,7 @@ def merge_independent(problems: list[Problem], solutions: list[Solution]) -> tup
         gradient_norm=max(s.gradient_norm for s in solutions),
         rank_deficient=any(s.rank_deficient for s in solutions),
         redundancy=tuple(r for s in solutions for r in s.redundancy),
+        extra=dict(extra or {}),
     )
 
 

@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Callable, Mapping
 
 import numpy as np
 
+from rigcal.errors import InputError
 from rigcal.problem.calibrate import CalibrationOptions, calibrate
 from rigcal.problem.compare import PoseError, errors_against_truth
 from rigcal.problem.result import CalibrationResult
@@ -275,6 +276,10 @@ def _rss(std: Mapping[str, float], keys: tuple[str, ...]) -> float:
     return float(np.sqrt(sum(float(std[k]) ** 2 for k in keys)))
 
 
+#: fewest holds of the flat target per sensor that determine the demo lidar's pose
+MIN_MOCAP_DEMO_HOLDS = 3
+
+
 def mocap_demo(
     out_dir: str | os.PathLike[str],
     seed: int = 7,
@@ -293,6 +298,12 @@ def mocap_demo(
     from rigcal.problem.compare import pose_error
     from rigcal.sim.mocap_scene import write_mocap_scene
 
+    if isinstance(holds, int) and not isinstance(holds, bool) and 1 <= holds < MIN_MOCAP_DEMO_HOLDS:
+        raise InputError(
+            f"--holds {holds}: the demo's lidar measures every point of the flat diamond, and "
+            f"{holds} plate pose(s) leave its pose undetermined (two planes leave a translation "
+            f"along their intersection free); give at least {MIN_MOCAP_DEMO_HOLDS}"
+        )
     out = Path(out_dir)
 
     def stage(name: str):

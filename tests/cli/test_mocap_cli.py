@@ -56,7 +56,7 @@ def test_study_mocap_bad_option_is_a_usage_error(capsys):
 
 def test_demo_mocap_calibrates_three_sensors_with_no_shared_view(tmp_path, capsys):
     out = tmp_path / "demo"
-    assert run(["demo", "--mocap", "--out", str(out), "--seed", "2", "--holds", "2"]) == 0
+    assert run(["demo", "--mocap", "--out", str(out), "--seed", "2", "--holds", "3"]) == 0
     text = capsys.readouterr().out
     assert "T_robot_sensor against the simulated truth" in text
     rows = {}
@@ -64,9 +64,9 @@ def test_demo_mocap_calibrates_three_sensors_with_no_shared_view(tmp_path, capsy
         line = next(ln for ln in text.splitlines() if re.match(rf"│ {name} +│", ln))
         cells = [c.strip() for c in line.strip().strip("│").split("│")]
         rows[name] = cells
-    # measured with --seed 2 --holds 2: final 0.66 / 1.28 / 0.23 mm and 0.027 / 0.012 / 0.007 deg
-    # from 25 / 22 / 33 mm and 5.3 / 4.4 / 1.9 deg (two holds per sensor calibrate less well
-    # than the default four: with seed 3 the lidar ends 12 mm off)
+    # measured with --seed 2 --holds 3: final 0.00 / 0.39 / 0.50 mm and 0.000 / 0.006 / 0.015 deg
+    # from 34 / 32 / 26 mm and 4.6 / 3.9 / 7.9 deg (the lidar measured by every point of the
+    # plate: two holds would leave its pose undetermined, see the bad options below)
     for name, cells in rows.items():
         initial_mm = float(cells[2].split("/")[0])
         final_mm, final_deg = (float(v) for v in cells[3].split("/"))
@@ -84,6 +84,7 @@ def test_demo_mocap_calibrates_three_sensors_with_no_shared_view(tmp_path, capsy
     (["--mocap", "--boards", "3"], "--mocap does not take --boards"),
     (["--mocap", "--detections-only", "--keep-bag"], "--mocap does not take --detections-only, --keep-bag"),
     (["--mocap", "--holds", "0"], "holds must be an integer in 1..100"),
+    (["--mocap", "--holds", "2"], "give at least 3"),
     (["--mocap", "--seed", "-2"], "seed must be an integer >= 0"),
     (["--holds", "2", "--detections-only"], "--holds applies only to the motion-capture demo"),
 ])

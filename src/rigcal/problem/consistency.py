@@ -8,9 +8,9 @@ Checks (each ``pass``, ``note`` or ``fail``; any ``fail`` flags the result):
   (the 1e-4 quantile, and at least 3) means the poses contradict the noise model: **fail**.
 * ``boards``: every (pair, board) the same way, against the noise estimated *without* that
   board (a bad board inflates the estimate it would be judged by), with the quantile corrected
-  for the number of boards tested; a board far off its pair's prediction *and* beyond the
-  outlier rule's physical floor (10 cm, radar pairs 20 cm: a bad detection kept) is a
-  **fail**; one only beyond the noise model is a **note** (real detections are heavier-tailed
+  for the number of boards tested; a board far off its pair's prediction (and more than 3
+  sigma RMS) *and* beyond the outlier rule's physical floor (10 cm, radar pairs 20 cm: a bad
+  detection kept) is a **fail**; one only beyond the noise model is a **note** (real detections are heavier-tailed
   than a Gaussian).
 * ``noise``: every sensor's estimated noise against what that kind of sensor can plausibly have
   (:data:`PLAUSIBLE_NOISE`); far above it (a board in the wrong units, a wrong pose the noise
@@ -42,6 +42,9 @@ PASS, NOTE, FAIL = "pass", "note", "fail"
 ALPHA = 1e-4
 #: a reduced chi-square at or below this never fails (model slack for real detections)
 MIN_FAIL_RATIO = 3.0
+#: a board fails only when its residuals are also more than 3 sigma RMS off (a bad detection
+#: kept is typically 5-10 sigma; far boards of a stereo camera reach 2-2.5 sigma when clean)
+MIN_FAIL_BOARD_RATIO = 9.0
 
 
 #: largest plausible noise std per sensor kind and component (m; camera depth: m at 1 m range;
@@ -155,7 +158,8 @@ def pair_checks(
                 # floor too (real detections are heavier-tailed than a Gaussian)
                 err = float(np.sqrt(np.mean(np.sum(rb[b.board == k] ** 2, axis=1))))
                 text = f"board {int(k)} in {b.label} ({np.sqrt(rk):.1f} sigma, {err * 1000:.0f} mm)"
-                (bad_boards if err > floor else odd_boards).append(text)
+                gross = err > floor and rk > MIN_FAIL_BOARD_RATIO
+                (bad_boards if gross else odd_boards).append(text)
     pair_check = (
         Check("pairs", FAIL, "residuals far above the noise model: " + "; ".join(bad_pairs)
               + " - the poses contradict the sensors' noise (a wrong pose, or a reference that "

@@ -18,13 +18,12 @@ import argparse
 import statistics
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
+from prius_data import prius_dataset
 from threadpoolctl import threadpool_limits
 
 from rigcal.errors import RigcalError
-from rigcal.io.manifest import dataset_from_files
 from rigcal.problem.calibrate import CalibrationOptions, calibrate
 from rigcal.problem.configurations import build_pairwise
 from rigcal.problem.globalise import solve_global
@@ -34,7 +33,6 @@ from rigcal.problem.pairs import all_pairs
 from rigcal.problem.residuals import MODEL_POINT, MODEL_RADAR2D
 from rigcal.problem.solver import _constraints, _evaluate, prepare, solve
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "tudelft_prius" / "detections"
 
 
 def draws(K: int, n: int, seed: int) -> list[np.ndarray]:
@@ -194,12 +192,9 @@ def main() -> int:
     ap.add_argument("--ipopt-draws", type=int, default=50)
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
-    if not DATA.is_dir():
-        print(f"benchmark data not found at {DATA} (needs ../shared beside the checkout)")
+    ds = prius_dataset()
+    if ds is None:
         return 1
-    ds = dataset_from_files(
-        lidar=[DATA / "lidar.csv"], camera=[DATA / "camera.csv"], radar=[DATA / "radar.csv"]
-    )
     Ks = [int(k) for k in args.K.split(",")]
     with threadpool_limits(limits=1):
         if args.draws:

@@ -13,27 +13,22 @@ import platform
 import statistics
 import sys
 import time
-from pathlib import Path
 
+from prius_data import DATA, prius_dataset
 from threadpoolctl import threadpool_limits
 
-from rigcal.io.manifest import dataset_from_files
 from rigcal.problem.calibrate import CalibrationOptions, _fit, calibrate
 from rigcal.problem.initialise import initial_poses
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "tudelft_prius" / "detections"
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=7)
     args = ap.parse_args()
-    if not DATA.is_dir():
-        print(f"benchmark data not found at {DATA} (needs ../shared beside the checkout)")
+    ds = prius_dataset()
+    if ds is None:
         return 1
-    ds = dataset_from_files(
-        lidar=[DATA / "lidar.csv"], camera=[DATA / "camera.csv"], radar=[DATA / "radar.csv"]
-    )
     print(f"machine: {platform.processor() or platform.machine()}, {platform.system()}, "
           f"python {platform.python_version()}")
     print(f"data: {DATA} ({ds.num_boards} boards, sensors {', '.join(ds.names)})")

@@ -688,9 +688,10 @@ def _weakest(A, layout: _Layout) -> str:
     k = int(np.argmax(v))
     i = int(np.argwhere(layout.cols == k)[0][0])
     dofs = [DOF_NAMES[j] for j in range(6) if layout.cols[i, j] >= 0 and v[layout.cols[i, j]] > 0.3 * v[k]]
+    cond = f"{w[-1] / w[0]:.2g}" if w[0] > w[-1] * 1e-300 else "infinite"  # no overflow warning
     return (
         f"; the least determined direction is {layout.names[i]} {'/'.join(dofs)} (condition number "
-        f"{w[-1] / max(w[0], 1e-300):.2g}): the boards barely fix it"
+        f"{cond}): the boards barely fix it"
     )
 
 

@@ -41,6 +41,7 @@ from rigcal.problem.noise import (
     estimate_theta,
     group_design,
     noise_map,
+    row_batches,
     sandwich,
     theta_by_sensor,
 )
@@ -442,19 +443,12 @@ def _fit_radar_reference(
     return _Fit(poses, merged, sol, {}, 0, {})
 
 
-def _row_batches(problem: Problem) -> np.ndarray:
-    """The observation batch (a pair, or a sensor in PSE) of every residual row."""
-    return np.concatenate(
-        [np.full(b.size * b.dim, i) for i, b in enumerate(problem.observations)]
-    ) if problem.observations else np.zeros(0, dtype=int)
-
-
 def _theta_all_pairs(dataset: Dataset, poses: Mapping[str, np.ndarray], reference: str, units: DetectionUnits) -> np.ndarray:
     """The noise model estimated from every comparable pair's residuals at ``poses``."""
     problem = build_pairwise(dataset, poses, reference, all_pairs(dataset))
     r, J, _, _, _ = linearise(problem)
     M = group_design(noise_map(problem, dataset, units), units)
-    return estimate_theta(r, M, 1.0, batches=_row_batches(problem))
+    return estimate_theta(r, M, 1.0, batches=row_batches(problem))
 
 
 def _profile_moves(problem: Problem, radar: str, vertices: list[np.ndarray]) -> list[np.ndarray]:
@@ -652,7 +646,7 @@ def _honest_covariance(
     Dw = scipy.sparse.diags(1.0 / sigma) @ noise_map(problem, dataset, units)
     # the fitted parameters absorb n of the m residual degrees of freedom (a row-by-row
     # account, (I - H) D, was tried: near-collinear groups then collapse to the floor)
-    theta = estimate_theta(r_w, group_design(Dw, units), m / max(m - n, 1), batches=_row_batches(problem))
+    theta = estimate_theta(r_w, group_design(Dw, units), m / max(m - n, 1), batches=row_batches(problem))
     bounded: dict[str, dict[str, tuple[float, float]]] = {}
     b_cols: list[int] = []
     spread: dict[str, np.ndarray] = {}

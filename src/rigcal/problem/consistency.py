@@ -31,7 +31,7 @@ import numpy as np
 import scipy.stats
 
 from rigcal.dataset import Dataset
-from rigcal.problem.noise import DetectionUnits, estimate_theta, group_design, noise_map
+from rigcal.problem.noise import DetectionUnits, estimate_theta, group_design, noise_map, row_batches
 from rigcal.problem.outliers import OutlierRule
 from rigcal.problem.pairs import all_pairs
 from rigcal.problem.residuals import MODEL_RADAR2D
@@ -128,7 +128,7 @@ def pair_checks(
     z2 = r**2 / np.maximum(M @ theta + pose_var, 1e-30)
     # each board against the noise estimated without it (a bad board inflates the noise
     # estimate it would otherwise be judged by)
-    batches = np.concatenate([np.full(b.size * b.dim, i) for i, b in enumerate(problem.observations)])
+    batches = row_batches(problem)
     row_board = np.concatenate([np.repeat(b.board, b.dim) for b in problem.observations])
     z2_deleted = np.empty_like(z2)
     for k in np.unique(row_board):

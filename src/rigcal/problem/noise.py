@@ -303,9 +303,12 @@ def sandwich(
     return Ainv, 0.5 * (C + C.T)
 
 
-def sigma_rows(M: np.ndarray, theta: np.ndarray) -> np.ndarray:
-    """Predicted std of every metric residual row."""
-    return np.sqrt(np.maximum(M @ theta, 1e-30))
+def row_batches(problem) -> np.ndarray:
+    """The observation batch (a pair, or a sensor in PSE) of every residual row of
+    ``problem``, in the solver's row order (``estimate_theta``'s ``batches``)."""
+    if not problem.observations:
+        return np.zeros(0, dtype=int)
+    return np.concatenate([np.full(b.size * b.dim, i) for i, b in enumerate(problem.observations)])
 
 
 __all__ = [
@@ -318,6 +321,6 @@ __all__ = [
     "noise_map",
     "reflector_jacobians",
     "sandwich",
-    "sigma_rows",
+    "row_batches",
     "theta_by_sensor",
 ]

@@ -314,6 +314,15 @@ def _verdict_lines(result, console) -> None:
             console.print(f"  note ({c.name}): {c.detail}")
 
 
+def _not_written(console, what: str = "the result") -> int:
+    """Say that a flagged result was not written; the exit code for it."""
+    console.print(
+        f"[bold red]not written[/bold red]: {what} failed its consistency check "
+        f"(exit code {EXIT_FLAGGED}); --force writes it anyway, with the verdict"
+    )
+    return EXIT_FLAGGED
+
+
 def _summary(result, console, verdict_first: bool = True) -> None:
     from rich.table import Table
 
@@ -387,11 +396,7 @@ def _cmd_calibrate(args, console) -> int:
     result = calibrate(dataset, options)
     if result.flagged and not args.force:
         _summary(result, console)
-        console.print(
-            f"[bold red]not written[/bold red]: the result failed its consistency check "
-            f"(exit code {EXIT_FLAGGED}); --force writes it anyway, with the verdict"
-        )
-        return EXIT_FLAGGED
+        return _not_written(console)
     write_results(result, args.out)
     if not args.no_plot:
         from rigcal.report.plot import plot_calibration
@@ -470,11 +475,7 @@ def _cmd_absolute(args, console) -> int:
     ground = {name: ground_normal_angle(pts, result.T_body_sensor(name)) for name, pts in checks}
     _verdict_lines(result.relative, console)
     if result.relative.flagged and not args.force:
-        console.print(
-            f"[bold red]not written[/bold red]: the relative calibration failed its consistency "
-            f"check (exit code {EXIT_FLAGGED}); --force writes it anyway, with the verdict"
-        )
-        return EXIT_FLAGGED
+        return _not_written(console, "the relative calibration")
     write_absolute(result, args.out)
     if args.json:
         sys.stdout.write(absolute_to_json_text(result) + "\n")
@@ -509,11 +510,7 @@ def _cmd_mocap(args, console) -> int:
         run = run_mocap(config, progress=lambda d, t: bar.update(task, completed=d, total=t))
     if run.result.flagged and not args.force:
         _summary(run.result, console)
-        console.print(
-            f"[bold red]not written[/bold red]: the result failed its consistency check "
-            f"(exit code {EXIT_FLAGGED}); --force writes it anyway, with the verdict"
-        )
-        return EXIT_FLAGGED
+        return _not_written(console)
     write_mocap_outputs(run, args.out, max_overlays=args.max_overlays)
     if args.json:
         sys.stdout.write(result_to_json_text(run.result) + "\n")

@@ -10,6 +10,7 @@ from typing import Any
 import yaml
 
 from rigcal.errors import InputError
+from rigcal.io.limits import MAX_BYTES, YAML_MAX_DEPTH, YAML_MAX_NODES, MiB, read_limited
 
 _BaseLoader: type = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
@@ -19,9 +20,12 @@ class _StrictLoader(_BaseLoader):  # type: ignore[misc, valid-type]
 
 
 def _construct_mapping(loader: Any, node: yaml.MappingNode, deep: bool = False) -> dict:
-    loader.flatten_mapping(node)
+    # duplicates are looked for among the keys written in this mapping; keys brought in by a
+    # merge key (``<<: *base``) may be overridden by explicit ones, as YAML specifies
     seen: set[Any] = set()
     for key_node, _ in node.value:
+        if key_node.tag == "tag:yaml.org,2002:merge":
+            continue
         key = loader.construct_object(key_node, deep=True)
         try:
             duplicate = key in seen
@@ -32,6 +36,7 @@ def _construct_mapping(loader: Any, node: yaml.MappingNode, deep: bool = False) 
             raise yaml.constructor.ConstructorError(
                 None, None, f"duplicate key {key!r}", key_node.start_mark
             )
+    loader.flatten_mapping(node)
     return yaml.SafeLoader.construct_mapping(loader, node, deep=deep)
 
 
@@ -40,37 +45,74 @@ _StrictLoader.add_constructor(
 )
 
 
+def _expanded_size(node: yaml.Node, memo: dict[int, int], depth: int, source: str) -> int:
+    """Nodes in ``node`` with every alias expanded (shared sub-graphs counted once per use)."""
+    key = id(node)
+    if key in memo:
+        return memo[key]
+    if depth > YAML_MAX_DEPTH:
+        raise InputError(
+            f"{source}: YAML nested deeper than {YAML_MAX_DEPTH} levels (or an alias refers to "
+            "itself); expected a plain configuration document"
+        )
+    if isinstance(node, yaml.SequenceNode):
+        n = 1 + sum(_expanded_size(c, memo, depth + 1, source) for c in node.value)
+    elif isinstance(node, yaml.MappingNode):
+        n = 1 + sum(
+            _expanded_size(k, memo, depth + 1, source) + _expanded_size(v, memo, depth + 1, source)
+            for k, v in node.value
+        )
+    else:
+        n = 1
+    if n > YAML_MAX_NODES:
+        raise InputError(
+            f"{source}: YAML expands to more than {YAML_MAX_NODES:,} values (aliases such as "
+            "*name repeat their anchor's content); expected a configuration of ordinary size"
+        )
+    memo[key] = n
+    return n
+
+
 def load_yaml(text: str, source: str) -> Any:
-    """Parse YAML ``text`` (safe, duplicate keys refused); errors name ``source`` and the line."""
+    """Parse YAML ``text`` (safe, duplicate keys refused, merge keys allowed); errors name
+    ``source`` and the line. Documents that expand (through aliases) to more than
+    :data:`~rigcal.io.limits.YAML_MAX_NODES` values or nest deeper than
+    :data:`~rigcal.io.limits.YAML_MAX_DEPTH` are refused before they are built."""
+    if len(text) > MAX_BYTES["yaml"]:
+        raise InputError(f"{source}: YAML text is larger than {MAX_BYTES['yaml'] // MiB} MiB")
+    loader = _StrictLoader(text)
     try:
-        return yaml.load(text, Loader=_StrictLoader)  # noqa: S506 - a SafeLoader subclass
+        node = loader.get_single_node()
+        if node is None:
+            return None
+        _expanded_size(node, {}, 0, source)
+        return loader.construct_document(node)
     except yaml.MarkedYAMLError as exc:
         mark = exc.problem_mark or exc.context_mark
         where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
         problem = " ".join(str(exc.problem or exc.context or "syntax error").split())
-        raise InputError(f"{source}: {where}invalid YAML: {problem}") from exc
+        raise InputError(f"{source}: {where}invalid YAML: {problem}") from None
     except yaml.YAMLError as exc:
         detail = " ".join(str(exc).split())
-        raise InputError(f"{source}: invalid YAML: {detail}") from exc
+        raise InputError(f"{source}: invalid YAML: {detail}") from None
+    except RecursionError:
+        raise InputError(
+            f"{source}: YAML nested too deeply; expected a plain configuration document"
+        ) from None
+    finally:
+        loader.dispose()
 
 
 def read_text(path: str | os.PathLike[str], what: str = "file") -> str:
-    """The UTF-8 text of ``path``; a missing, unreadable or binary file raises InputError."""
-    p = Path(path)
-    if not p.exists():
-        raise InputError(f"{p}: {what} not found")
-    if p.is_dir():
-        raise InputError(f"{p}: is a directory, expected a {what}")
-    try:
-        data = p.read_bytes()
-    except OSError as exc:
-        raise InputError(f"{p}: cannot read {what}: {exc.strerror or exc}") from exc
+    """The UTF-8 text of ``path``; a missing, unreadable, binary, oversized or non-regular file
+    (directory, FIFO, device) raises InputError. See :mod:`rigcal.io.limits`."""
+    data = read_limited(path, what, "text")
     try:
         return data.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
         raise InputError(
-            f"{p}: {what} is not UTF-8 text (byte {exc.start}: {exc.reason})"
-        ) from exc
+            f"{Path(path)}: {what} is not UTF-8 text (byte {exc.start}: {exc.reason})"
+        ) from None
 
 
 def is_number(value: Any) -> bool:

@@ -39,6 +39,7 @@ import numpy as np
 
 from rigcal.dataset import SensorKind
 from rigcal.errors import InputError
+from rigcal.io.limits import read_limited
 from rigcal.io._text import read_text
 from rigcal.io.atomic import atomic_write_bytes, atomic_write_text
 from rigcal.io.pointcloud import (
@@ -293,10 +294,7 @@ class FolderRecording:
         content = _CONTENT[path.suffix.lower()]
         dims = 3 if kind is SensorKind.RADAR3D else 2
         if content == "image":
-            try:
-                data = path.read_bytes()
-            except OSError as exc:
-                raise InputError(f"{path}: cannot read image: {exc.strerror or exc}") from exc
+            data = read_limited(path, "image", "image")
             return ImageFrame(sensor=sensor, t_ns=t_ns, image=decode_image_bytes(data, str(path)))
         if content == "radar_csv":
             return parse_radar_csv(read_text(path, "radar CSV"), str(path), sensor, t_ns, dims,

@@ -43,6 +43,7 @@ from typing import Iterable, Sequence
 import numpy as np
 
 from rigcal.errors import InputError
+from rigcal.io.limits import read_limited
 from rigcal.io.atomic import atomic_write_bytes
 from rigcal.recording import PointCloudFrame, RadarFrame
 
@@ -262,15 +263,7 @@ def _xyz_dtype(xyz_dtype: object, source: str) -> np.dtype:
 
 
 def _read_bytes(path: str | os.PathLike[str], what: str) -> bytes:
-    p = Path(path)
-    if not p.exists():
-        raise InputError(f"{p}: {what} not found")
-    if p.is_dir():
-        raise InputError(f"{p}: is a directory, expected a {what}")
-    try:
-        return p.read_bytes()
-    except OSError as exc:
-        raise InputError(f"{p}: cannot read {what}: {exc.strerror or exc}") from exc
+    return read_limited(path, what, "point cloud")
 
 
 # --------------------------------------------------------------------------------------------

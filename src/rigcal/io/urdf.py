@@ -40,6 +40,7 @@ from xml.parsers import expat
 import numpy as np
 
 from rigcal.errors import GeometryError, InputError
+from rigcal.io.limits import read_limited
 from rigcal.geometry.se3 import from_rt, invert
 from rigcal.geometry.so3 import matrix_from_rpy, rpy_from_matrix
 from rigcal.io._text import is_finite_number, load_yaml, type_name
@@ -904,14 +905,7 @@ def read_original_calibration_yaml(
 
 
 def _read_urdf_file(path: Path) -> tuple[bytes, str]:
-    if not path.exists():
-        raise InputError(f"{path}: URDF file not found")
-    if path.is_dir():
-        raise InputError(f"{path}: is a directory, expected a URDF file")
-    try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read URDF file: {exc.strerror or exc}") from exc
+    data = read_limited(path, "URDF file", "text")
     body = data[len(_BOM) :] if data.startswith(_BOM) else data
     try:
         return data, body.decode("utf-8")

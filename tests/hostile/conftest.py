@@ -1,0 +1,113 @@
+"""Harness of the hostile-input suite: every case runs under a memory and a time limit.
+
+``cli(*args)`` runs ``rigcal`` in a subprocess (address space and wall time limited) and returns
+the finished process; ``refused(proc, *names)`` asserts the contract for a bad input: exit code
+not 0, no traceback or warning, exactly one ``rigcal: error:`` line naming every one of ``names``.
+``limited(fn)`` runs ``fn`` (e.g. a hypothesis test) in a forked child under the same limits, so
+a parser that hangs or balloons fails the test instead of taking the machine down.
+"""
+
+from __future__ import annotations
+
+import os
+import resource
+import signal
+import subprocess
+import sys
+import traceback
+from pathlib import Path
+
+import pytest
+
+CLI_MEMORY_MB = 1536
+CLI_SECONDS = 90
+
+
+def _limit_child(memory_mb: int) -> None:
+    limit = memory_mb << 20
+    resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+
+
+def run_cli(*args: str, cwd: Path | None = None, memory_mb: int = CLI_MEMORY_MB,
+            seconds: float = CLI_SECONDS, stdin: bytes | None = None,
+            env: dict[str, str] | None = None) -> subprocess.CompletedProcess:
+    full_env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1",
+                "PYTHONWARNINGS": "default", **(env or {})}
+    return subprocess.run(
+        [sys.executable, "-m", "rigcal.cli.main", *map(str, args)],
+        cwd=cwd, input=stdin, capture_output=True, timeout=seconds, env=full_env,
+        preexec_fn=lambda: _limit_child(memory_mb),
+    )
+
+
+def assert_refused(proc: subprocess.CompletedProcess, *names: str, code: int | None = None) -> str:
+    """The one error line of a refused input (asserted as described in the module docstring)."""
+    err = proc.stderr.decode("utf-8", "replace") if isinstance(proc.stderr, bytes) else proc.stderr
+    assert proc.returncode != 0, f"accepted a bad input:\n{err}"
+    if code is not None:
+        assert proc.returncode == code, err
+    assert "Traceback" not in err, err
+    assert "Warning" not in err, err
+    errors = [line for line in err.splitlines() if line.startswith("rigcal: error:")]
+    assert len(errors) == 1, err
+    for name in names:
+        assert str(name) in errors[0], f"{name!r} not named in: {errors[0]}"
+    return errors[0]
+
+
+def _vm_bytes() -> int:
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmSize:"):
+            return int(line.split()[1]) * 1024
+    return 0
+
+
+def run_limited(fn, memory_mb: int = 1024, seconds: int = 120) -> None:
+    """Run ``fn()`` in a forked child with ``memory_mb`` more address space than this process
+    and ``seconds`` of wall time; a failure, a hang or a memory blow-up fails the calling test."""
+    r, w = os.pipe()
+    pid = os.fork()
+    if pid == 0:  # child
+        os.close(r)
+        code, message = 0, b""
+        try:
+            limit = _vm_bytes() + (memory_mb << 20)
+            resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+            signal.alarm(seconds)
+            fn()
+        except BaseException:  # noqa: BLE001 - reported to the parent
+            code, message = 1, traceback.format_exc().encode("utf-8", "replace")
+        try:
+            os.write(w, message[-30000:])
+        finally:
+            os._exit(code)
+    os.close(w)
+    chunks = []
+    while chunk := os.read(r, 65536):
+        chunks.append(chunk)
+    os.close(r)
+    _, status = os.waitpid(pid, 0)
+    text = b"".join(chunks).decode("utf-8", "replace")
+    if os.WIFSIGNALED(status):
+        sig = os.WTERMSIG(status)
+        why = "took longer than %d s" % seconds if sig == signal.SIGALRM else f"killed by signal {sig}"
+        pytest.fail(f"{getattr(fn, '__name__', fn)} {why} (memory limit {memory_mb} MiB)\n{text}")
+    if os.WEXITSTATUS(status) != 0:
+        pytest.fail(text)
+
+
+@pytest.fixture
+def cli():
+    return run_cli
+
+
+@pytest.fixture
+def refused():
+    return assert_refused
+
+
+@pytest.fixture
+def limited():
+    if not hasattr(os, "fork"):
+        pytest.skip("needs os.fork to run each case under a memory limit")
+    return run_limited

@@ -61,8 +61,22 @@ def _calibrate_all(dataset, truth, out: Path, modes=("mcpe", "fcpe", "pse")) -> 
     return tuple(outcomes)
 
 
+MIN_DEMO_BOARDS, MAX_DEMO_BOARDS = 3, 200
+
+
+def _check_boards(boards: int) -> None:
+    if isinstance(boards, bool) or not isinstance(boards, int) or not (
+        MIN_DEMO_BOARDS <= boards <= MAX_DEMO_BOARDS
+    ):
+        raise InputError(
+            f"--boards {boards}: expected {MIN_DEMO_BOARDS} to {MAX_DEMO_BOARDS} board placements "
+            f"(fewer than {MIN_DEMO_BOARDS} cannot determine a pose)"
+        )
+
+
 def detections_demo(out_dir: str | os.PathLike[str], seed: int = 7, boards: int = 29) -> DemoReport:
     """Simulate detections of a Prius-like rig, calibrate with every mode, compare with truth."""
+    _check_boards(boards)
     from rigcal.io.manifest import write_dataset
     from rigcal.sim import make_rig_placements, prius_like_rig, simulate
 
@@ -182,6 +196,7 @@ def raw_demo(
 ) -> DemoReport:
     """Simulate raw data of a Prius-like rig into a real bag, detect the board in it, find the
     placements automatically, calibrate with every mode and compare with the truth."""
+    _check_boards(boards)
     from rigcal.detect.pipeline import run_detection
     from rigcal.io.bag import write_recording
     from rigcal.io.folder import open_any

@@ -10,6 +10,7 @@ a parser that hangs or balloons fails the test instead of taking the machine dow
 from __future__ import annotations
 
 import os
+import re
 import resource
 import signal
 import subprocess
@@ -20,6 +21,8 @@ from pathlib import Path
 import pytest
 
 CLI_MEMORY_MB = 1536
+# "rigcal: error: ..." for a bad input; "rigcal demo: error: ..." for argparse's usage errors
+_ERROR_LINE = re.compile(r"^rigcal( [a-z]+)*: error: ")
 CLI_SECONDS = 90
 
 
@@ -48,7 +51,7 @@ def assert_refused(proc: subprocess.CompletedProcess, *names: str, code: int | N
         assert proc.returncode == code, err
     assert "Traceback" not in err, err
     assert "Warning" not in err, err
-    errors = [line for line in err.splitlines() if line.startswith("rigcal: error:")]
+    errors = [line for line in err.splitlines() if _ERROR_LINE.match(line)]
     assert len(errors) == 1, err
     for name in names:
         assert str(name) in errors[0], f"{name!r} not named in: {errors[0]}"

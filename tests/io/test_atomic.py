@@ -78,3 +78,71 @@ def test_wrong_types():
         atomic_write_text("x", b"bytes")  # type: ignore[arg-type]
     with pytest.raises(TypeError, match="must be bytes"):
         atomic_write_bytes("x", "text")  # type: ignore[arg-type]
+
+
+# ---------------------------------------------------------------------------------------------
+# staged_folder: a set of files written as one
+
+
+def test_staged_folder_publishes_the_whole_set_at_once(tmp_path):
+    from rigcal.io.atomic import OUTPUT_MARKER, staged_folder
+
+    out = tmp_path / "out"
+    with staged_folder(out) as stage:
+        (stage / "a.yaml").write_text("a")
+        assert not out.exists()  # nothing visible until the block ends
+        (stage / "b.png").write_bytes(b"b")
+    assert sorted(p.name for p in out.iterdir()) == sorted([OUTPUT_MARKER, "a.yaml", "b.png"])
+    assert [p.name for p in tmp_path.iterdir()] == ["out"]
+
+
+def test_staged_folder_leaves_the_old_set_on_error(tmp_path):
+    from rigcal.io.atomic import staged_folder
+
+    out = tmp_path / "out"
+    with staged_folder(out) as stage:
+        (stage / "a.yaml").write_text("old")
+    with pytest.raises(KeyboardInterrupt):
+        with staged_folder(out) as stage:
+            (stage / "a.yaml").write_text("new")
+            raise KeyboardInterrupt
+    assert (out / "a.yaml").read_text() == "old"
+    assert [p.name for p in tmp_path.iterdir()] == ["out"]  # the staging folder is gone
+
+
+def test_staged_folder_replaces_an_earlier_output(tmp_path):
+    from rigcal.io.atomic import staged_folder
+
+    out = tmp_path / "out"
+    with staged_folder(out) as stage:
+        (stage / "old.yaml").write_text("old")
+    with staged_folder(out) as stage:
+        (stage / "new.yaml").write_text("new")
+    assert not (out / "old.yaml").exists() and (out / "new.yaml").read_text() == "new"
+    assert [p.name for p in tmp_path.iterdir()] == ["out"]
+
+
+def test_staged_folder_refuses_a_folder_it_did_not_write(tmp_path):
+    from rigcal.io.atomic import staged_folder
+
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "mine.txt").write_text("user data")
+    with pytest.raises(InputError, match="did not write"):
+        with staged_folder(out):
+            pass
+    assert [p.name for p in out.iterdir()] == ["mine.txt"]
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(InputError, match="not a folder"):
+        with staged_folder(tmp_path / "file"):
+            pass
+
+
+def test_staged_folder_accepts_an_empty_folder(tmp_path):
+    from rigcal.io.atomic import staged_folder
+
+    out = tmp_path / "out"
+    out.mkdir()
+    with staged_folder(out) as stage:
+        (stage / "a").write_text("a")
+    assert (out / "a").read_text() == "a"

@@ -9,11 +9,13 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
 from pathlib import Path
 from typing import Sequence
 
 from rigcal import __version__
+from rigcal.cli.args import count, number
 from rigcal.errors import RigcalError
 
 #: exit code of a result the consistency check flagged
@@ -78,7 +80,7 @@ def _parser() -> argparse.ArgumentParser:
         help="hold each 2D radar's z, roll and pitch at the initial guess",
     )
     c.add_argument("--initial", metavar="FILE", help="initial guesses: a previous calibration.yaml")
-    c.add_argument("--cv-folds", type=int, default=5, metavar="N", help="leave-boards-out folds (0 = off)")
+    c.add_argument("--cv-folds", type=count(0, 1000), default=5, metavar="N", help="leave-boards-out folds (0 = off)")
     c.add_argument("--no-plot", action="store_true", help="do not write calibration.png")
     c.add_argument(
         "--pse-noise", default="iterated", choices=["iterated", "identity"],
@@ -126,7 +128,7 @@ def _parser() -> argparse.ArgumentParser:
     a.add_argument("--origin", default="rear_axle", choices=["rear_axle", "front_axle", "wheelbase_centre"])
     a.add_argument("--mode", default="fcpe", choices=["mcpe", "fcpe", "pse"])
     a.add_argument("--body-frame", default="base_link", help="name of the body frame (default base_link)")
-    a.add_argument("--label-sigma-mm", type=float, help="label noise, to include the body frame's uncertainty")
+    a.add_argument("--label-sigma-mm", type=number(0.0, 1e4), help="label noise, to include the body frame's uncertainty")
     a.add_argument(
         "--ground-check", action="append", default=[], metavar="SENSOR=CLOUD",
         help="a sensor's scan of flat ground: report the angle of its ground normal in the body frame (eq. 13)",
@@ -154,7 +156,7 @@ def _parser() -> argparse.ArgumentParser:
     m.add_argument("config", metavar="CONFIG.yaml")
     m.add_argument("--out", required=True, metavar="DIR")
     m.add_argument("--json", action="store_true", help="print the result as JSON on stdout")
-    m.add_argument("--max-overlays", type=int, default=None, metavar="N", help="overlay images per sensor")
+    m.add_argument("--max-overlays", type=count(0, 100000), default=None, metavar="N", help="overlay images per sensor")
     m.add_argument(
         "--force", action="store_true",
         help="write the result even when the consistency check flags it (exit code stays 3)",
@@ -237,7 +239,8 @@ def _parser() -> argparse.ArgumentParser:
     )
     d.add_argument("--out", default="demo_out", metavar="DIR", help="output folder (default demo_out)")
     d.add_argument("--seed", type=int, default=7, help="random seed (default 7)")
-    d.add_argument("--boards", type=int, default=None, help="board placements (default 12 raw, 29 detections-only)")
+    d.add_argument("--boards", type=int, default=None,
+                   help="board placements (default 12 raw, 29 detections-only)")
     d.add_argument("--detections-only", action="store_true", help="simulate detections directly (fast, no raw data)")
     d.add_argument("--mocap", action="store_true",
                    help="motion-capture demo: a lidar and two cameras with no shared view calibrated to the robot frame")
@@ -364,6 +367,7 @@ def _cmd_calibrate(args, console) -> int:
     from rigcal.io.calibration_files import read_initial_poses
     from rigcal.io.ignore import read_ignore_file
     from rigcal.io.manifest import dataset_from_files, load_manifest
+    from rigcal.io.atomic import staged_folder
     from rigcal.io.results import result_to_json_text, write_results
     from rigcal.problem.calibrate import CalibrationOptions, calibrate
 
@@ -397,11 +401,12 @@ def _cmd_calibrate(args, console) -> int:
     if result.flagged and not args.force:
         _summary(result, console)
         return _not_written(console)
-    write_results(result, args.out)
-    if not args.no_plot:
-        from rigcal.report.plot import plot_calibration
+    with staged_folder(args.out) as stage:
+        write_results(result, stage)
+        if not args.no_plot:
+            from rigcal.report.plot import plot_calibration
 
-        plot_calibration(dataset, result, Path(args.out) / "calibration.png")
+            plot_calibration(dataset, result, stage / "calibration.png")
     if args.json:
         sys.stdout.write(result_to_json_text(result) + "\n")
     _summary(result, console)
@@ -436,11 +441,13 @@ def _detect(recording_path: str, rig_path: str, console):
 
 
 def _cmd_detect(args, console) -> int:
+    from rigcal.io.atomic import staged_folder
     from rigcal.io.manifest import write_dataset
 
     run = _detect(args.recording, args.rig, console)
-    path = write_dataset(run.dataset, args.out)
-    console.print(f"dataset written to {path}")
+    with staged_folder(args.out) as stage:
+        name = write_dataset(run.dataset, stage).name
+    console.print(f"dataset written to {Path(args.out) / name}")
     return 0
 
 
@@ -453,6 +460,7 @@ def _cmd_absolute(args, console) -> int:
     from rigcal.errors import InputError
     from rigcal.io._text import read_text
     from rigcal.io.absolute_io import absolute_to_json_text, write_absolute
+    from rigcal.io.atomic import staged_folder
     from rigcal.io.manifest import load_manifest
     from rigcal.io.pointcloud import read_point_cloud
 
@@ -476,7 +484,8 @@ def _cmd_absolute(args, console) -> int:
     _verdict_lines(result.relative, console)
     if result.relative.flagged and not args.force:
         return _not_written(console, "the relative calibration")
-    write_absolute(result, args.out)
+    with staged_folder(args.out) as stage:
+        write_absolute(result, stage)
     if args.json:
         sys.stdout.write(absolute_to_json_text(result) + "\n")
     b = result.body
@@ -554,11 +563,24 @@ def _cmd_urdf(args, console) -> int:
     return 0
 
 
+def _same_path(a: str, b: str) -> bool:
+    """True when paths ``a`` and ``b`` name the same file (or would, once created)."""
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return os.path.realpath(a) == os.path.realpath(b)
+
+
 def _cmd_export(args, console) -> int:
+    from rigcal.errors import InputError
     from rigcal.io import tf_export
     from rigcal.io.atomic import atomic_write_text
     from rigcal.io.calibration_files import read_calibration_transforms
 
+    if args.out and _same_path(args.out, args.calibration):
+        raise InputError(
+            f"--out {args.out}: is the input calibration file; choose another output path"
+        )
     cal = read_calibration_transforms(args.calibration)
     t, parent = dict(cal.transforms), cal.parent_frame
     text = {
@@ -646,6 +668,7 @@ def _print_mocap_demo(report, console) -> None:
 def _cmd_demo(args, console) -> int:
     from rigcal.demo import detections_demo, mocap_demo, raw_demo
     from rigcal.errors import InputError
+    from rigcal.io.atomic import staged_folder
 
     if args.mocap:
         others = [flag for flag, given in (
@@ -654,28 +677,90 @@ def _cmd_demo(args, console) -> int:
             ("--keep-bag", args.keep_bag)) if given]
         if others:
             raise InputError(f"--mocap does not take {', '.join(others)} (it takes --out, --seed and --holds)")
-        with _progress_bar(console) as bar:
-            report = mocap_demo(args.out, seed=args.seed, holds=4 if args.holds is None else args.holds,
-                                progress=_stage_progress(bar))
-        _print_mocap_demo(report, console)
-        return 0
-    if args.holds is not None:
+    elif args.holds is not None:
         raise InputError("--holds applies only to the motion-capture demo (--mocap)")
-    if args.detections_only:
-        _print_demo(detections_demo(args.out, seed=args.seed, boards=args.boards or 29), console)
-        return 0
-    with _progress_bar(console) as bar:
-        report = raw_demo(
-            args.out, seed=args.seed, boards=args.boards or 12, bag_format=args.bag_format or "rosbag1",
-            full_rate=args.full_rate, keep_bag=args.keep_bag, progress=_stage_progress(bar),
-        )
-    _print_demo(report, console)
+    out = Path(args.out)
+    # the whole demo folder is written as one set: a new folder beside --out, renamed at the end
+    with staged_folder(out) as stage:
+        if args.mocap:
+            with _progress_bar(console) as bar:
+                report = mocap_demo(stage, seed=args.seed, holds=4 if args.holds is None else args.holds,
+                                    progress=_stage_progress(bar))
+        elif args.detections_only:
+            report = detections_demo(stage, seed=args.seed, boards=29 if args.boards is None else args.boards)
+        else:
+            with _progress_bar(console) as bar:
+                report = raw_demo(
+                    stage, seed=args.seed, boards=12 if args.boards is None else args.boards,
+                    bag_format=args.bag_format or "rosbag1", full_rate=args.full_rate,
+                    keep_bag=args.keep_bag, progress=_stage_progress(bar),
+                )
+    report = _moved(report, stage, out)
+    (_print_mocap_demo if args.mocap else _print_demo)(report, console)
     return 0
 
 
+def _moved(report, stage: Path, out: Path):
+    """``report`` with the paths inside the staging folder shown where they are now (``out``)."""
+    import dataclasses
+
+    def move(value):
+        if isinstance(value, Path) and value.is_relative_to(stage):
+            return out / value.relative_to(stage)
+        if isinstance(value, str):
+            return value.replace(str(stage), str(out))
+        if isinstance(value, tuple) and all(isinstance(v, (str, Path)) for v in value):
+            return tuple(move(v) for v in value)
+        return value
+
+    return dataclasses.replace(report, **{
+        f.name: move(getattr(report, f.name)) for f in dataclasses.fields(report)
+    })
+
+
+EXIT_INTERRUPTED = 130  # Ctrl-C (128 + SIGINT)
+EXIT_TERMINATED = 143  # SIGTERM (128 + SIGTERM)
+
+
+class Terminated(BaseException):
+    """Raised in the main thread when the process receives SIGTERM (see :func:`entry`)."""
+
+
+def _dispatch(args, parser, console) -> int:
+    if args.command == "calibrate":
+        return _cmd_calibrate(args, console)
+    if args.command == "detect":
+        return _cmd_detect(args, console)
+    if args.command == "absolute":
+        return _cmd_absolute(args, console)
+    if args.command == "mocap":
+        return _cmd_mocap(args, console)
+    if args.command == "study":
+        if args.study != "mocap":
+            parser.parse_args(["study", "--help"])
+        from rigcal.study.mocap_study import run as run_study
+
+        text, code = run_study(args)
+        (sys.stdout if code == 0 else sys.stderr).write(text + "\n")
+        return code
+    if args.command == "urdf":
+        return _cmd_urdf(args, console)
+    if args.command == "export":
+        return _cmd_export(args, console)
+    if args.command == "demo":
+        return _cmd_demo(args, console)
+    return 2
+
+
 def run(argv: Sequence[str] | None = None) -> int:
-    """Run the command line; returns the exit code."""
-    from rich.console import Console
+    """Run the command line; returns the exit code.
+
+    A :class:`RigcalError` is one line on stderr and exit code 1; Ctrl-C and SIGTERM print
+    "interrupted" and return 130 / 143 (outputs are written as whole sets, so nothing
+    half-written is left). numpy's floating-point RuntimeWarnings are not shown (each result
+    carries its own checks); with ``-v`` an unexpected internal error shows its traceback.
+    """
+    import warnings
 
     parser = _parser()
     args = parser.parse_args(argv)
@@ -683,41 +768,50 @@ def run(argv: Sequence[str] | None = None) -> int:
     if args.command is None:
         parser.print_help()
         return 2
-    # with --json, stdout carries only the JSON; the human summary goes to stderr
-    to_err = bool(getattr(args, "json", False))
-    stream = sys.stderr if to_err else sys.stdout
-    console = Console(stderr=to_err, highlight=False, width=None if stream.isatty() else 130)
     try:
-        if args.command == "calibrate":
-            return _cmd_calibrate(args, console)
-        if args.command == "detect":
-            return _cmd_detect(args, console)
-        if args.command == "absolute":
-            return _cmd_absolute(args, console)
-        if args.command == "mocap":
-            return _cmd_mocap(args, console)
-        if args.command == "study":
-            if args.study != "mocap":
-                parser.parse_args(["study", "--help"])
-            from rigcal.study.mocap_study import run as run_study
+        from rich.console import Console
 
-            text, code = run_study(args)
-            (sys.stdout if code == 0 else sys.stderr).write(text + "\n")
-            return code
-        if args.command == "urdf":
-            return _cmd_urdf(args, console)
-        if args.command == "export":
-            return _cmd_export(args, console)
-        if args.command == "demo":
-            return _cmd_demo(args, console)
+        # with --json, stdout carries only the JSON; the human summary goes to stderr
+        to_err = bool(getattr(args, "json", False))
+        stream = sys.stderr if to_err else sys.stdout
+        console = Console(stderr=to_err, highlight=False, width=None if stream.isatty() else 130)
+        with warnings.catch_warnings():
+            if not args.verbose:
+                warnings.simplefilter("ignore", RuntimeWarning)
+            return _dispatch(args, parser, console)
     except RigcalError as exc:
         sys.stderr.write(f"rigcal: error: {exc}\n")
         return 1
-    return 2
+    except KeyboardInterrupt:
+        sys.stderr.write("\nrigcal: interrupted (nothing half-written is left)\n")
+        return EXIT_INTERRUPTED
+    except Terminated:
+        sys.stderr.write("rigcal: terminated (nothing half-written is left)\n")
+        return EXIT_TERMINATED
+    except MemoryError:
+        sys.stderr.write(f"rigcal: error: out of memory in '{args.command}' (an input too large?)\n")
+        return 1
+    except RecursionError:
+        sys.stderr.write(f"rigcal: error: input nested too deeply for '{args.command}'\n")
+        return 1
+
+
+def _raise_terminated(signum, frame) -> None:
+    raise Terminated()
 
 
 def entry() -> None:
-    sys.exit(run())
+    import signal
+
+    signal.signal(signal.SIGTERM, _raise_terminated)
+    try:
+        code = run()
+    except KeyboardInterrupt:  # Ctrl-C while the arguments were parsed
+        sys.stderr.write("\nrigcal: interrupted\n")
+        code = EXIT_INTERRUPTED
+    except Terminated:
+        code = EXIT_TERMINATED
+    sys.exit(code)
 
 
 if __name__ == "__main__":  # pragma: no cover

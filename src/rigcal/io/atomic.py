@@ -8,8 +8,14 @@ file gets the usual permissions (``0o666`` minus the umask); an existing file ke
 
 from __future__ import annotations
 
+import errno
 import os
 import secrets
+import shutil
+import stat
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 from rigcal.errors import InputError
@@ -80,3 +86,110 @@ def _fsync_directory(directory: Path) -> None:
         pass
     finally:
         os.close(fd)
+
+
+#: Name of the marker file in every folder rigcal writes as one set; an existing folder holding
+#: it (or empty) may be replaced by a new set, any other existing folder is refused.
+OUTPUT_MARKER = ".rigcal-output"
+
+
+def _replaceable(target: Path) -> None:
+    try:
+        st = target.stat()
+    except FileNotFoundError:
+        return
+    except OSError as exc:
+        from rigcal.io.limits import os_error_text
+
+        raise InputError(f"{target}: cannot use as output folder: {os_error_text(exc)}") from None
+    if not stat.S_ISDIR(st.st_mode):
+        raise InputError(f"{target}: exists and is not a folder; expected an output folder")
+    try:
+        entries = [e.name for e in os.scandir(target)]
+    except OSError as exc:
+        raise InputError(f"{target}: cannot read output folder: {exc.strerror or exc}") from None
+    if entries and OUTPUT_MARKER not in entries:
+        shown = ", ".join(sorted(entries)[:3]) + (", ..." if len(entries) > 3 else "")
+        raise InputError(
+            f"{target}: output folder already holds files rigcal did not write ({shown}); "
+            "give a new or empty folder"
+        )
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Swap two paths in one step (Linux renameat2 RENAME_EXCHANGE); False where unsupported."""
+    if not sys.platform.startswith("linux"):
+        return False
+    import ctypes
+
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        renameat2 = libc.renameat2
+    except (OSError, AttributeError):
+        return False
+    at_fdcwd, rename_exchange = -100, 2
+    renameat2.argtypes = [ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p,
+                          ctypes.c_uint]
+    rc = renameat2(at_fdcwd, os.fsencode(a), at_fdcwd, os.fsencode(b), rename_exchange)
+    if rc == 0:
+        return True
+    err = ctypes.get_errno()
+    if err in (errno.ENOSYS, errno.EINVAL, errno.EOPNOTSUPP):
+        return False
+    raise OSError(err, os.strerror(err), str(b))
+
+
+def _publish(stage: Path, target: Path) -> None:
+    """Move the complete folder ``stage`` to ``target``; an earlier rigcal output there is
+    replaced (swapped out in one step where the OS allows, then deleted)."""
+    for _ in range(100):
+        try:
+            os.rename(stage, target)  # succeeds if target is absent or an empty folder
+            return
+        except OSError as exc:
+            if exc.errno not in (errno.ENOTEMPTY, errno.EEXIST):
+                raise
+        _replaceable(target)
+        if _exchange(stage, target):
+            shutil.rmtree(stage, ignore_errors=True)  # stage now holds the previous set
+            return
+        old = target.parent / f".{target.name}.{secrets.token_hex(6)}.old"
+        try:
+            os.rename(target, old)
+        except FileNotFoundError:
+            continue  # another writer moved it away first: try again
+        shutil.rmtree(old, ignore_errors=True)
+    raise InputError(f"{target}: could not replace the output folder (other writers keep changing it)")
+
+
+@contextmanager
+def staged_folder(path: str | os.PathLike[str]) -> Iterator[Path]:
+    """Write a set of files as one: yields a new temporary folder beside ``path``; when the
+    ``with`` block ends normally the folder (marked with :data:`OUTPUT_MARKER`) becomes ``path``
+    in one rename, replacing an earlier rigcal output there. On any error or interrupt the
+    temporary folder is removed and ``path`` is left as it was, so ``path`` holds a complete set
+    or nothing. An existing folder that holds other files is refused (InputError)."""
+    target = Path(path)
+    _replaceable(target)
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(
+            f"{target.parent}: cannot create output directory: {exc.strerror or exc}"
+        ) from None
+    stage = target.parent / f".{target.name}.{secrets.token_hex(6)}.partial"
+    try:
+        stage.mkdir()
+    except OSError as exc:
+        raise InputError(f"{target}: cannot create output folder: {exc.strerror or exc}") from None
+    try:
+        yield stage
+        (stage / OUTPUT_MARKER).write_bytes(b"written by rigcal as one set of files\n")
+        _fsync_directory(stage)
+        _publish(stage, target)
+    except BaseException as exc:
+        shutil.rmtree(stage, ignore_errors=True)
+        if isinstance(exc, OSError):
+            raise InputError(f"{target}: cannot write output folder: {exc.strerror or exc}") from exc
+        raise
+    _fsync_directory(target.parent)

@@ -20,7 +20,7 @@ import numpy as np
 
 from rigcal.errors import InputError
 from rigcal.geometry.se3 import as_rigid, invert
-from rigcal.io._text import load_yaml, read_text
+from rigcal.io._text import load_yaml, read_text, type_name
 
 
 @dataclass(frozen=True, eq=False)
@@ -48,24 +48,35 @@ def parse_calibration_transforms(text: str, source: str) -> CalibrationTransform
             f"{source}: not a calibration file: expected {{source, target, transform}} (original tool), "
             "or 'sensors' with T_reference_sensor (rigcal calibration.yaml) or T_body_sensor (absolute.yaml)"
         )
+    for name, entry in sensors.items():
+        if not isinstance(name, str) or not isinstance(entry, dict):
+            raise InputError(
+                f"{source}: sensors.{name}: expected a mapping with frame_id and the sensor's "
+                f"transform, got {type_name(entry)}"
+            )
+        frame = entry.get("frame_id", name)
+        if not isinstance(frame, str) or not frame:
+            raise InputError(f"{source}: sensors.{name}.frame_id: expected a frame name, got {frame!r}")
     if "body_frame" in data:
         bf = data["body_frame"]
-        parent = str(bf.get("name", "base_link")) if isinstance(bf, dict) else str(bf)
+        parent = bf.get("name", "base_link") if isinstance(bf, dict) else bf
+        if not isinstance(parent, str) or not parent:
+            raise InputError(f"{source}: body_frame: expected a frame name, got {type_name(parent)}")
         out = {}
         for name, entry in sensors.items():
-            if not isinstance(entry, dict) or "T_body_sensor" not in entry:
+            if "T_body_sensor" not in entry:
                 raise InputError(f"{source}: sensors.{name}: missing T_body_sensor")
             out[str(entry.get("frame_id", name))] = _matrix(entry["T_body_sensor"], f"{source}: sensors.{name}.T_body_sensor")
         return CalibrationTransforms("absolute", parent, out, source)
     ref = data.get("reference")
-    if ref not in sensors:
-        raise InputError(f"{source}: reference '{ref}' is not one of the sensors {list(sensors)}")
+    if not isinstance(ref, str) or ref not in sensors:
+        raise InputError(f"{source}: reference {ref!r} is not one of the sensors {list(sensors)}")
     parent = str(sensors[ref].get("frame_id", ref))
     out = {}
     for name, entry in sensors.items():
         if name == ref:
             continue
-        if not isinstance(entry, dict) or "T_reference_sensor" not in entry:
+        if "T_reference_sensor" not in entry:
             raise InputError(f"{source}: sensors.{name}: missing T_reference_sensor")
         out[str(entry.get("frame_id", name))] = _matrix(entry["T_reference_sensor"], f"{source}: sensors.{name}.T_reference_sensor")
     return CalibrationTransforms("relative", parent, out, source)

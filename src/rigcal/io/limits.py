@@ -133,7 +133,7 @@ def check_finite(values: Any, source: str, field: str, unit: str = "m",
         bad &= ~np.isnan(arr)
     if bad.any():
         idx = tuple(int(i) for i in np.argwhere(bad)[0])
-        value = arr[idx] if arr.ndim else float(arr)
+        value = float(arr[idx]) if arr.ndim else float(arr)
         where = f"[{', '.join(map(str, idx))}]" if idx else ""
         expected = f"a finite value within ±{limit:g} {unit}"
         raise InputError(f"{source}: {field}{where} is {value!r}, expected {expected}")

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 from typing import Mapping
 
 import numpy as np
-import scipy.stats
+import scipy.special
 
 from rigcal.dataset import Dataset
 from rigcal.problem.noise import DetectionUnits, estimate_theta, group_design, noise_map, row_batches
@@ -90,7 +90,7 @@ class Verdict:
 @functools.lru_cache(maxsize=4096)
 def _limit(dof: int, tests: int) -> float:
     """Reduced chi-square above which ``dof`` rows fail, ``tests`` such tests made."""
-    q = scipy.stats.chi2.isf(ALPHA / max(tests, 1), max(dof, 1)) / max(dof, 1)
+    q = scipy.special.chdtri(max(dof, 1), ALPHA / max(tests, 1)) / max(dof, 1)  # chi2 isf
     return max(float(q), MIN_FAIL_RATIO)
 
 

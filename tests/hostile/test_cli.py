@@ -1,0 +1,260 @@
+"""Hostile input to the command line as a whole: YAML bombs, non-regular files, long names,
+malformed calibration files, an output that is also the input, nonsense counts, interrupts.
+
+Each case runs ``rigcal`` in a subprocess under a memory and time limit (see conftest.py) and
+expects a non-zero exit, one error line naming the culprit, no traceback and no output left.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rigcal.io.manifest import write_dataset
+from rigcal.sim.rig import make_rig_placements, prius_like_rig, simulate
+
+BOMB = "".join(
+    f"{c}: &{c} [" + ", ".join([f"*{p}"] * 9) + "]\n"
+    for p, c in zip("abcdefgh", "bcdefghi")
+)
+BOMB = "a: &a [lol, lol, lol, lol, lol, lol, lol, lol, lol]\n" + BOMB  # 9^9 = 387 M strings
+
+
+@pytest.fixture(scope="module")
+def dataset_dir(tmp_path_factory) -> Path:
+    rng = np.random.default_rng(11)
+    sensors = prius_like_rig()
+    sim = simulate(sensors, make_rig_placements(rng, sensors, 8, min_fraction=1.0), rng=rng)
+    return write_dataset(sim.dataset, tmp_path_factory.mktemp("data") / "data").parent
+
+
+def _no_output(tmp_path: Path, out: Path) -> None:
+    assert not out.exists()
+    leftovers = [p.name for p in out.parent.iterdir() if p.name.startswith(f".{out.name}.")]
+    assert not leftovers, leftovers
+
+
+def _relative_calibration(dataset_dir: Path, tmp_path: Path, cli) -> Path:
+    out = tmp_path / "cal"
+    proc = cli("calibrate", dataset_dir / "rig.yaml", "--mode", "fcpe", "--out", out, "--no-plot")
+    assert proc.returncode == 0, proc.stderr
+    return out / "calibration.yaml"
+
+
+# ---------------------------------------------------------------------------------------------
+# YAML bombs and deep nesting, in every kind of YAML the CLI reads
+
+
+@pytest.mark.parametrize("doc", [BOMB, "a: &a [*a]\n", "[" * 5000 + "]" * 5000])
+def test_yaml_bomb_manifest(tmp_path, cli, refused, doc):
+    manifest = tmp_path / "rig.yaml"
+    manifest.write_text(doc)
+    out = tmp_path / "out"
+    refused(cli("calibrate", manifest, "--out", out, memory_mb=700, seconds=30), "rig.yaml", code=1)
+    _no_output(tmp_path, out)
+
+
+def test_yaml_bomb_initial_guess(tmp_path, cli, refused, dataset_dir):
+    guess = tmp_path / "initial.yaml"
+    guess.write_text(BOMB)
+    out = tmp_path / "out"
+    proc = cli("calibrate", dataset_dir / "rig.yaml", "--initial", guess, "--out", out,
+               memory_mb=700, seconds=30)
+    refused(proc, "initial.yaml", "expands to more than")
+    _no_output(tmp_path, out)
+
+
+@pytest.mark.parametrize("command", ["export", "urdf"])
+def test_yaml_bomb_calibration_file(tmp_path, cli, refused, command):
+    cal = tmp_path / "calibration.yaml"
+    cal.write_text(BOMB)
+    urdf = tmp_path / "robot.urdf"
+    urdf.write_text('<robot name="r"><link name="base_link"/></robot>')
+    out = tmp_path / "out.x"
+    args = ["export", cal, "--format", "yaml", "--out", out] if command == "export" else ["urdf", urdf, cal, "--out", out]
+    refused(cli(*args, memory_mb=700, seconds=30), "calibration.yaml", "expands to more than")
+    assert not out.exists()
+
+
+def test_yaml_bomb_mocap_config(tmp_path, cli, refused):
+    cfg = tmp_path / "mocap.yaml"
+    cfg.write_text(BOMB)
+    out = tmp_path / "out"
+    refused(cli("mocap", cfg, "--out", out, memory_mb=700, seconds=30), "mocap.yaml")
+    _no_output(tmp_path, out)
+
+
+def test_yaml_merge_keys_are_standard_yaml(tmp_path, cli, dataset_dir):
+    """``<<: *base`` was refused as a duplicate key; now a manifest may share settings."""
+    text = (dataset_dir / "rig.yaml").read_text()
+    assert "sensors:" in text
+    text = "defaults: &defaults {}\n" + text.replace("sensors:", "x-shared:\n  <<: *defaults\nsensors:", 1)
+    manifest = dataset_dir.parent / "merge" / "rig.yaml"
+    manifest.parent.mkdir(exist_ok=True)
+    for p in dataset_dir.iterdir():
+        (manifest.parent / p.name).write_bytes(p.read_bytes())
+    manifest.write_text(text)
+    proc = cli("calibrate", manifest, "--out", tmp_path / "out", "--no-plot")
+    err = proc.stderr.decode()
+    # unknown top-level keys may be refused by the manifest reader, but not as a YAML error
+    assert "duplicate key" not in err and "invalid YAML" not in err, err
+
+
+# ---------------------------------------------------------------------------------------------
+# files that are not regular files, and names the file system cannot hold
+
+
+@pytest.fixture
+def fifo(tmp_path) -> Path:
+    if not hasattr(os, "mkfifo"):
+        pytest.skip("no FIFOs on this system")
+    p = tmp_path / "pipe.yaml"
+    os.mkfifo(p)
+    return p
+
+
+def test_fifo_manifest_is_refused_without_blocking(tmp_path, cli, refused, fifo):
+    out = tmp_path / "out"
+    refused(cli("calibrate", fifo, "--out", out, seconds=30), "pipe.yaml", "FIFO")
+    _no_output(tmp_path, out)
+
+
+def test_fifo_calibration_file(tmp_path, cli, refused, fifo):
+    refused(cli("export", fifo, "--format", "yaml", seconds=30), "pipe.yaml", "FIFO")
+
+
+@pytest.mark.skipif(not Path("/dev/zero").exists(), reason="no /dev/zero")
+def test_dev_zero_as_detections(tmp_path, cli, refused):
+    lidar = tmp_path / "lidar.csv"
+    lidar.symlink_to("/dev/zero")
+    out = tmp_path / "out"
+    proc = cli("calibrate", "--lidar", lidar, "--camera", lidar, "--out", out,
+               memory_mb=700, seconds=30)
+    refused(proc, "lidar.csv", "character device")
+    _no_output(tmp_path, out)
+
+
+def test_directory_as_calibration_file(tmp_path, cli, refused):
+    refused(cli("export", tmp_path, "--format", "yaml"), str(tmp_path), "directory")
+
+
+def test_long_input_file_name(tmp_path, cli, refused):
+    name = "x" * 300 + ".yaml"
+    refused(cli("export", tmp_path / name, "--format", "yaml"), "file name too long")
+
+
+def test_long_output_folder_name(tmp_path, cli, refused, dataset_dir):
+    out = tmp_path / ("o" * 300)
+    proc = cli("calibrate", dataset_dir / "rig.yaml", "--out", out, "--no-plot")
+    refused(proc, "o" * 40)
+    assert not any(p.name.startswith(".o") for p in tmp_path.iterdir())
+
+
+# ---------------------------------------------------------------------------------------------
+# malformed calibration files (sensors null, a list, an entry null, a list as reference)
+
+
+@pytest.mark.parametrize("text, expected", [
+    ("reference: a\nsensors: null\n", "not a calibration file"),
+    ("reference: a\nsensors: [a, b]\n", "not a calibration file"),
+    ("reference: a\nsensors:\n  a: null\n  b: {}\n", "sensors.a: expected a mapping"),
+    ("reference: [a]\nsensors:\n  a: {}\n", "reference ['a'] is not one of the sensors"),
+    ("body_frame: base\nsensors:\n  a: [1]\n", "sensors.a: expected a mapping"),
+    ("body_frame: [x]\nsensors:\n  a: {T_body_sensor: 1}\n", "body_frame: expected a frame name"),
+    ("reference: a\nsensors:\n  a: {frame_id: [1]}\n", "sensors.a.frame_id"),
+    ("reference: a\nsensors:\n  a: {}\n  b:\n    T_reference_sensor: [[1,0,0,1e300],[0,1,0,0],[0,0,1,0],[0,0,0,1]]\n",
+     "sensors.b.T_reference_sensor: translation"),
+])
+@pytest.mark.parametrize("command", ["export", "urdf"])
+def test_malformed_calibration_file(tmp_path, cli, refused, text, expected, command):
+    cal = tmp_path / "calibration.yaml"
+    cal.write_text(text)
+    urdf = tmp_path / "robot.urdf"
+    urdf.write_text('<robot name="r"><link name="base_link"/><link name="a"/><link name="b"/></robot>')
+    out = tmp_path / "out.urdf"
+    args = ["export", cal, "--format", "yaml", "--out", out] if command == "export" else ["urdf", urdf, cal, "--out", out]
+    refused(cli(*args), "calibration.yaml", expected)
+    assert not out.exists()
+
+
+# ---------------------------------------------------------------------------------------------
+# an output that is also the input; nonsense counts
+
+
+def test_export_refuses_to_overwrite_its_input(tmp_path, cli, refused, dataset_dir):
+    cal = _relative_calibration(dataset_dir, tmp_path, cli)
+    before = cal.read_bytes()
+    for out in (cal, cal.parent / "." / cal.name):
+        refused(cli("export", cal, "--out", out, "--format", "yaml"), "is the input calibration file")
+    assert cal.read_bytes() == before
+
+
+@pytest.mark.parametrize("argv, expected", [
+    (["demo", "--detections-only", "--boards", "0"], "--boards 0"),
+    (["demo", "--boards", "-3"], "--boards -3"),
+    (["demo", "--detections-only", "--boards", "100000000"], "--boards 100000000"),
+])
+def test_demo_counts(tmp_path, cli, refused, argv, expected):
+    out = tmp_path / "out"
+    refused(cli(*argv, "--out", out, seconds=30), expected, code=1)
+    _no_output(tmp_path, out)
+
+
+@pytest.mark.parametrize("argv, expected", [
+    (["--cv-folds", "-1"], "--cv-folds"),
+    (["--cv-folds", "1e9"], "--cv-folds"),
+])
+def test_calibrate_counts(tmp_path, cli, refused, dataset_dir, argv, expected):
+    out = tmp_path / "out"
+    refused(cli("calibrate", dataset_dir / "rig.yaml", *argv, "--out", out), expected, code=2)
+    _no_output(tmp_path, out)
+
+
+def test_output_folder_with_foreign_files_is_not_replaced(tmp_path, cli, refused, dataset_dir):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "notes.txt").write_text("mine")
+    refused(cli("calibrate", dataset_dir / "rig.yaml", "--out", out, "--no-plot"),
+            str(out), "did not write")
+    assert [p.name for p in out.iterdir()] == ["notes.txt"]
+
+
+# ---------------------------------------------------------------------------------------------
+# interrupts
+
+
+def _start(args: list[str]) -> subprocess.Popen:
+    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1"}
+    return subprocess.Popen([sys.executable, "-m", "rigcal.cli.main", *map(str, args)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
+
+
+@pytest.mark.parametrize("sig, code, word", [
+    (signal.SIGINT, 130, "interrupted"), (signal.SIGTERM, 143, "terminated"),
+])
+def test_interrupt_leaves_nothing_half_written(tmp_path, sig, code, word):
+    """The detections-only demo writes several folders over ~10 s; interrupted while it runs,
+    it exits 130/143 with one line, no traceback and no demo folder (whole or partial)."""
+    out = tmp_path / "demo"
+    proc = _start(["demo", "--detections-only", "--out", out])
+    deadline = time.monotonic() + 60
+    # wait until it is writing (the staging folder appears), then interrupt
+    while time.monotonic() < deadline and not any(
+        p.name.startswith(".demo.") for p in tmp_path.iterdir()
+    ):
+        time.sleep(0.05)
+    time.sleep(0.5)
+    proc.send_signal(sig)
+    _, err = proc.communicate(timeout=60)
+    err = err.decode()
+    assert proc.returncode == code, err
+    assert word in err and "Traceback" not in err, err
+    assert not out.exists()
+    assert not list(tmp_path.iterdir()), list(tmp_path.iterdir())

@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Callable, Mapping
 
 import numpy as np
 
-from rigcal.errors import InputError
+from rigcal.errors import ConvergenceError, InputError
 from rigcal.problem.calibrate import CalibrationOptions, calibrate
 from rigcal.problem.compare import PoseError, errors_against_truth
 from rigcal.problem.result import CalibrationResult
@@ -328,6 +328,9 @@ def mocap_demo(
 
     scene = write_mocap_scene(out / "scene", seed=seed, holds=holds, progress=stage("simulating the session"))
     run = run_mocap(load_mocap_config(scene.config_path), progress=stage("extracting targets"))
+    if run.not_calibrated:  # the simulated session shows every sensor: a partial run is a failure
+        raise ConvergenceError("mocap demo: " + "; ".join(
+            f"sensor '{n}' not calibrated: {why}" for n, why in run.not_calibrated.items()))
     written = write_mocap_outputs(run, out / "results")
     counts = run.counts
     outcomes = []

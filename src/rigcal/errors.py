@@ -24,4 +24,12 @@ class GeometryError(RigcalError):
 
 
 class ConvergenceError(RigcalError):
-    """An optimisation did not converge; no result is returned."""
+    """An optimisation did not converge; no result is returned.
+
+    ``sensor`` names the one sensor at fault when the failure is that sensor's alone (its
+    measurements leave its pose undetermined), so a caller may go on without it; None when
+    the problem as a whole failed."""
+
+    def __init__(self, *args: object, sensor: str | None = None) -> None:
+        super().__init__(*args)
+        self.sensor = sensor

@@ -100,3 +100,174 @@ def test_demo_mocap_holds_must_be_an_integer(capsys):
         run(["demo", "--mocap", "--holds", "two"])
     assert exc.value.code == 2
     assert "invalid int value" in capsys.readouterr().err
+
+
+# --------------------------------------------------------------------------------------------
+# hostile and broken input (issue #11): one sensor's trouble, NaN in the mocap streams
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory):
+    """The two-sensor session of the first test (lidar1 sees every hold, camera1 its own 3)."""
+    return write_mocap_scene(tmp_path_factory.mktemp("mocap_cli_scene"), two_sensor_rig(), seed=0,
+                             holds=3, exclusive=False)
+
+
+def _copy_scene(scene, folder, edit=None):
+    """The scene's files in ``folder``, its bag rewritten message by message: ``edit(topic,
+    msgtype, t_ns, msg)`` may change ``msg`` in place."""
+    import shutil
+
+    from rosbags.rosbag1 import Reader, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    folder.mkdir()
+    for p in scene.folder.iterdir():
+        if p != scene.bag_path:
+            shutil.copy(p, folder / p.name)
+    store = get_typestore(Stores.ROS1_NOETIC)
+    with Reader(scene.bag_path) as reader, Writer(folder / scene.bag_path.name) as writer:
+        conns = {}
+        for conn, t_ns, raw in reader.messages():
+            if conn.topic not in conns:
+                conns[conn.topic] = writer.add_connection(conn.topic, conn.msgtype, typestore=store)
+            if edit is not None:
+                msg = store.deserialize_ros1(raw, conn.msgtype)
+                if edit(conn.topic, conn.msgtype, t_ns, msg):
+                    raw = store.serialize_ros1(msg, conn.msgtype)
+            writer.write(conns[conn.topic], t_ns, raw)
+    return folder / scene.config_path.name
+
+
+def test_mocap_cli_a_camera_that_never_sees_the_target_is_not_calibrated(scene, tmp_path, capsys, caplog):
+    # camera1's images are blank: it never sees the target, whatever the search window; the
+    # lidar still sees every hold and is calibrated; three robot poses are NaN (mocap dropouts)
+    nan_robot = set(range(500, 503))
+    counter = {"robot": 0}
+
+    def edit(topic, msgtype, t_ns, msg):
+        if topic == "/F1/image_raw":
+            msg.data = np.full_like(msg.data, 128)
+            return True
+        if topic == scene.robot_topic:
+            counter["robot"] += 1
+            if counter["robot"] in nan_robot:
+                msg.transform.rotation.x = float("nan")
+                return True
+        return False
+
+    cfg = _copy_scene(scene, tmp_path / "blind", edit)
+    out = tmp_path / "out"
+    with caplog.at_level("WARNING"):
+        assert run(["mocap", str(cfg), "--out", str(out), "--json"]) == 4  # EXIT_PARTIAL
+    captured = capsys.readouterr()
+    data = json.loads(captured.out)
+    assert set(data["sensors"]) == {"lidar1"}
+    reason = data["not_calibrated"]["camera1"]
+    assert reason.startswith("every measurement was rejected (") and "nothing to calibrate it with" in reason
+    T = np.asarray(data["sensors"]["lidar1"]["T_reference_sensor"])
+    assert np.abs(T[:3, 3] - scene.truth["lidar1"][:3, 3]).max() < 0.002
+    # the terminal says which sensor is missing and why, and that it is a partial result
+    err = " ".join(captured.err.split())
+    assert "not calibrated: camera1: every measurement was rejected" in err
+    assert "partial: 1 of 2 sensors not calibrated (camera1), exit code 4" in err
+    assert "Traceback" not in err
+    assert "topic /vicon/robot/robot: dropped 3 samples (of" in caplog.text  # a warning
+    # the outputs are complete for the calibrated part, the missing sensor listed with its reason
+    import yaml
+
+    doc = yaml.safe_load((out / "calibration.yaml").read_text())
+    assert set(doc["sensors"]) == {"lidar1"} and doc["not_calibrated"] == {"camera1": reason}
+    for name in ("lidar1.yaml", "calibration.launch", "extrinsics.json", "diagnostics.csv"):
+        assert (out / name).is_file(), name
+    assert not (out / "camera1.yaml").exists()
+    ext = json.loads((out / "extrinsics.json").read_text())
+    assert "camera_link" not in json.dumps(ext) and "velodyne_link" in json.dumps(ext)
+    rows = (out / "diagnostics.csv").read_text().splitlines()
+    cam_rows = [r for r in rows if r.startswith("camera1,")]
+    assert len(cam_rows) == len(scene.frames["camera1"]) and not any(",kept," in r for r in cam_rows)
+    assert all(p.name.startswith("lidar1") for p in (out / "overlays").glob("*.png"))
+
+
+def _robot_csv_config(scene, tmp_path, rows):
+    import yaml
+
+    csv_path = tmp_path / "robot.csv"
+    csv_path.write_text("t,x,y,z,qx,qy,qz,qw\n" + "".join(",".join(str(v) for v in r) + "\n" for r in rows))
+    doc = yaml.safe_load(scene.config_path.read_text())
+    folder = scene.folder
+    for key in ("recording", "initial_calibration"):
+        doc[key] = str(folder / doc[key])
+    for t in doc["mocap"]["targets"].values():
+        t["definition"] = str(folder / t["definition"])
+    for s in doc["sensors"]:
+        if "intrinsics" in s:
+            s["intrinsics"] = str(folder / s["intrinsics"])
+    doc["mocap"]["robot"] = {"csv": str(csv_path)}
+    cfg = tmp_path / "mocap.yaml"
+    cfg.write_text(yaml.safe_dump(doc, sort_keys=False))
+    return cfg, csv_path
+
+
+def _robot_rows(scene, times_ns):
+    from rigcal.mocap import matrix_to_quat_xyzw
+
+    out = []
+    for t in times_ns:
+        T = scene.T_map_robot_at(t)
+        out.append((int(t), *T[:3, 3], *matrix_to_quat_xyzw(T[:3, :3])))
+    return out
+
+
+def test_mocap_cli_no_sensor_calibrated_is_one_line_naming_every_reason(scene, tmp_path, capsys):
+    NS = 1_000_000_000
+    end = int(scene.frames["camera1"][-1]) + NS
+    cfg, _ = _robot_csv_config(scene, tmp_path, _robot_rows(scene, range(scene.t0_ns, end, NS)))  # 1 Hz
+    out = tmp_path / "out"
+    assert run(["mocap", str(cfg), "--out", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("rigcal: error:") and err.count("\n") == 1 and "Traceback" not in err
+    assert "no sensor can be calibrated: sensor 'lidar1': every measurement was rejected" in err
+    assert "; sensor 'camera1': every measurement was rejected" in err and "no_pose_data" in err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("spoil, what", [
+    (lambda r: (*r[:4], "nan", "nan", "nan", "nan"), "column qx: expected a finite number, got 'nan'"),
+    (lambda r: (*r[:4], "inf", *r[5:]), "infinite pose value in column qx"),
+    (lambda r: (*r[:4], 0.0, 0.0, 0.0, 0.0), "quaternion (qx, qy, qz, qw) has norm 0"),
+    (lambda r: (*r[:4], 0.0, 0.0, 0.0, 2.0), "quaternion (qx, qy, qz, qw) has norm 2"),
+])
+def test_mocap_cli_a_nan_quaternion_row_in_a_pose_csv_is_one_line(scene, tmp_path, capsys, spoil, what):
+    NS = 1_000_000_000
+    rows = _robot_rows(scene, range(scene.t0_ns, scene.t0_ns + NS, NS // 100))
+    rows[42] = spoil(rows[42])
+    cfg, csv_path = _robot_csv_config(scene, tmp_path, rows)
+    out = tmp_path / "out"
+    assert run(["mocap", str(cfg), "--out", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("rigcal: error:") and err.count("\n") == 1 and "Traceback" not in err
+    assert f"{csv_path}: line 44: {what}" in err  # row 42 after the header on line 1
+    assert not out.exists()
+
+
+def test_mocap_cli_a_non_unit_quaternion_in_a_bag_pose_stream_is_one_line(scene, tmp_path, capsys):
+    counter = {"n": 0}
+
+    def edit(topic, msgtype, t_ns, msg):
+        if topic != scene.target_topic:
+            return False
+        counter["n"] += 1
+        if counter["n"] == 101:  # message 100 of the target's topic
+            msg.transform.rotation.w *= 1.5
+            return True
+        return False
+
+    cfg = _copy_scene(scene, tmp_path / "bad", edit)
+    out = tmp_path / "out"
+    assert run(["mocap", str(cfg), "--out", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("rigcal: error:") and err.count("\n") == 1 and "Traceback" not in err
+    assert f"run.bag: topic {scene.target_topic}: message 100 (stamp " in err
+    assert "expected a unit quaternion" in err
+    assert not out.exists()

@@ -310,3 +310,53 @@ def test_extrinsics_from_constant_tf(kit, tmp_path):
     assert list(ext.transforms) == [("base_link", "camera")]
     np.testing.assert_allclose(ext.lookup("camera", "base_link"), np.linalg.inv(T_base_cam),
                                atol=1e-12)
+
+
+# -- hostile numbers (issue #11) ---------------------------------------------------------------
+
+
+def _pose_bag(kit, tmp_path, fmt, edit):
+    """/robot_pose PoseStamped at 100 Hz for 1 s; ``edit(k, msg)`` may spoil message k."""
+    store = kit.store_for(fmt)
+    t = _times(100.0, 1.0)
+    T = kit.trajectory((t - T0) / NS)
+    msgs = []
+    for k, tk in enumerate(t):
+        msg = kit.pose_stamped(store, "world", int(tk), T[k])
+        edit(k, msg)
+        msgs.append(("/robot_pose", "geometry_msgs/msg/PoseStamped", int(tk), msg))
+    return kit.write_bag(kit.bag_path(tmp_path, fmt), fmt, store, msgs), t
+
+
+@pytest.mark.parametrize("fmt", ["rosbag1", "rosbag2-mcap"])
+def test_nan_poses_in_a_pose_stream_are_dropouts_with_a_warning(kit, tmp_path, caplog, fmt):
+    def nan_orientation(k, msg):
+        if k in (20, 21, 60):
+            msg.pose.orientation.x = float("nan")
+
+    path, t = _pose_bag(kit, tmp_path, fmt, nan_orientation)
+    with caplog.at_level("WARNING"):
+        s = read_pose_topics(path, ["/robot_pose"])["robot_pose"]
+    assert len(s) == len(t) - 3 and np.all(np.isfinite(s.T))
+    assert not np.isin(t[[20, 21, 60]], s.t_ns).any()
+    assert [r.levelname for r in caplog.records] == ["WARNING"]
+    assert "topic /robot_pose: dropped 3 samples (of 101) as mocap dropouts" in caplog.text
+
+
+@pytest.mark.parametrize("spoil, match", [
+    (lambda m: setattr(m.pose.orientation, "w", 3.0),
+     r"topic /robot_pose: message 30 \(stamp \d+ ns\): quaternion \(qx, qy, qz, qw\) = .* has norm "
+     r"3\.\d+; expected a unit quaternion \(norm within 0\.001 of 1"),
+    (lambda m: setattr(m.pose.position, "y", float("inf")),
+     r"topic /robot_pose: message 30 \(stamp \d+ ns\): y is inf; expected a finite number"),
+    (lambda m: setattr(m.pose.position, "z", -2.5e4),
+     r"topic /robot_pose: message 30 .*: position z = -25000 m is beyond 10000 m"),
+])
+def test_non_poses_in_a_pose_stream_are_refused(kit, tmp_path, spoil, match):
+    def edit(k, msg):
+        if k == 30:
+            spoil(msg)
+
+    path, _ = _pose_bag(kit, tmp_path, "rosbag1", edit)
+    with pytest.raises(InputError, match=match):
+        read_pose_topics(path, ["/robot_pose"])

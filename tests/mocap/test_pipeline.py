@@ -32,6 +32,7 @@ from rigcal.mocap import matrix_to_quat_xyzw, write_extrinsics_json
 from rigcal.mocap.config import load_mocap_config
 from rigcal.mocap.pipeline import (
     DIAGNOSTICS_COLUMNS,
+    KEPT,
     SUMMARY_COLUMNS,
     run_mocap,
     summary_rows,
@@ -269,6 +270,42 @@ def test_every_frame_in_a_mocap_gap_is_an_error_naming_the_sensor(scene, tmp_pat
                                          r"\(\d+ frames x 1 targets; rejections: "
                                          r"no_pose_data: \d+\)"):
         run_mocap(cfg)
+
+
+def test_a_mocap_dropout_over_one_sensors_holds_leaves_it_not_calibrated(scene, tmp_path):
+    # the robot body is lost for the whole of every camera hold: the camera has no usable frame
+    # (no_pose_data there, the target out of its view elsewhere); the lidar is calibrated from
+    # its own holds and the camera reported with the reason
+    cam = scene.holds_of("camera1")
+    assert cam
+    end = int(scene.frames["camera1"][-1]) + NS
+    times = [t for t in range(scene.t0_ns, end, NS // 100)
+             if not any(h.start_ns - NS // 10 <= t <= h.end_ns + NS // 10 for h in cam)]
+    _pose_csv(tmp_path / "robot.csv", _robot_rows(scene, times))
+    r = run_mocap(load_mocap_config(_config(scene, tmp_path, _robot_csv(tmp_path / "robot.csv"))))
+    assert set(r.result.sensors) == {"lidar1"} and set(r.not_calibrated) == {"camera1"}
+    assert dict(r.result.not_calibrated) == dict(r.not_calibrated)
+    why = r.not_calibrated["camera1"]
+    assert why.startswith("every measurement was rejected (") and "no_pose_data: " in why
+    t1, r1 = _errors(r.final["lidar1"], scene.truth["lidar1"])
+    assert t1 < 0.05 and r1 < 0.005
+    # every frame of both sensors is still in the diagnostics, the camera's none kept
+    counts = r.counts
+    assert sum(counts["camera1"].values()) == len(scene.frames["camera1"])
+    assert KEPT not in counts["camera1"] and counts["camera1"]["no_pose_data"] > 0
+    assert sum(counts["lidar1"].values()) == len(scene.frames["lidar1"])
+    assert len(r.observations) == sum(d.kept for d in r.diagnostics)
+    assert [d.t_ns for d in r.diagnostics] == sorted(d.t_ns for d in r.diagnostics)
+    rows = {row[0]: dict(zip(SUMMARY_COLUMNS, row)) for row in summary_rows(r)}
+    assert math.isnan(rows["camera1"]["change_mm"]) and rows["lidar1"]["change_mm"] > 1.0
+    # the outputs: complete for the lidar, the camera listed with its reason
+    out = tmp_path / "out"
+    write_mocap_outputs(r, out)
+    doc = yaml.safe_load((out / "calibration.yaml").read_text())
+    assert set(doc["sensors"]) == {"lidar1"} and doc["not_calibrated"] == {"camera1": why}
+    assert (out / "lidar1.yaml").is_file() and not (out / "camera1.yaml").exists()
+    with open(out / "diagnostics.csv", newline="") as fh:
+        assert {row["sensor"] for row in csv.DictReader(fh)} == {"lidar1", "camera1"}
 
 
 def test_a_target_never_seen_is_an_error(scene, tmp_path):

@@ -329,7 +329,8 @@ def test_csv_drops_occluded_rows(caplog):
         (_csv([[0, "inf", 0, 0, *ID]]), r"line 2: infinite pose value"),
         ("", r"f\.csv: no header line"),
         ("t,x,y,z,qx,qy,qz,qw\n", r"f\.csv: no samples after the header \(line 1\)"),
-        (_csv([[0, "nan", 0, 0, *ID]]), r"every row has missing pose values"),
+        (_csv([[0, *["nan"] * 7]]), r"every row has missing pose values"),
+        (_csv([[0, "nan", 0, 0, *ID]]), r"f\.csv: line 2: column x: expected a finite number, got 'nan'"),
     ],
 )
 def test_csv_errors(text, match):
@@ -362,3 +363,36 @@ def test_rigid_body_sanity_of_synthetic_trajectory(kit):
     steps = np.linalg.norm(np.diff(T[:, :3, 3], axis=0), axis=1)
     assert steps.max() < 0.01
     assert from_rt(np.eye(3), np.zeros(3)).shape == (4, 4)
+
+
+# -- hostile numbers (issue #11) ---------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "row, match",
+    [
+        # a pose with only its quaternion missing is not an occlusion marker: refused
+        ([0.01, 1, 2, 3, "nan", "nan", "nan", "nan"],
+         r"f\.csv: line 3: column qx: expected a finite number, got 'nan' \(an occluded sample "
+         r"leaves all seven pose columns empty or nan; a row with only qx, qy, qz, qw missing"),
+        ([0.01, 1, 2, 3, 0, 0, "", 1], r"f\.csv: line 3: column qz: expected a finite number, got ''"),
+        ([0.01, 1, 2, 3, 0, 0, "-inf", 1], r"f\.csv: line 3: infinite pose value in column qz"),
+        ([0.01, 1, 2, 3, 0, 0, 0, 0], r"f\.csv: line 3: quaternion \(qx, qy, qz, qw\) has norm 0"),
+        ([0.01, 1, 2, 3, 0, 0, 0, 1.01], r"f\.csv: line 3: quaternion .* has norm 1\.01"),
+        ([0.01, 1, 12000.0, 3, *ID],
+         r"f\.csv: line 3: column y: position 12000 m is beyond 10000 m; expected metres"),
+    ],
+)
+def test_csv_refuses_rows_that_are_neither_a_pose_nor_an_occlusion(row, match):
+    with pytest.raises(InputError, match=match):
+        parse_pose_csv(_csv([[0, 0, 0, 0, *ID], row, [0.02, 0, 0, 0, *ID]]), "b", "f.csv")
+
+
+def test_csv_keeps_a_quaternion_within_tolerance_and_warns_about_occlusions(caplog):
+    text = _csv([[0, 0, 0, 0, 0, 0, 0, 1.0005], [0.01, *["nan"] * 7], [0.02, 9999.0, 0, 0, *ID]])
+    with caplog.at_level("WARNING"):
+        s = parse_pose_csv(text, "b", "occl.csv")
+    assert s.t_ns.tolist() == [0, 20_000_000]
+    np.testing.assert_allclose(s.T[0, :3, :3], np.eye(3), atol=1e-12)  # normalised
+    assert [r.levelname for r in caplog.records] == ["WARNING"]
+    assert "occl.csv: dropped 1 of 3 rows with missing pose values" in caplog.text

@@ -413,3 +413,27 @@ def test_a_lidar_that_saw_one_plate_is_refused_not_converged():
     with pytest.raises(ConvergenceError, match="do not determine its pose"):
         calibrate_mocap([lidar], obs, {"lidar": rig.T_robot_lidar},
                         {"diamond": TargetSurface.of(target)})
+
+
+def test_an_undetermined_sensor_is_named_in_the_error():
+    # the one-plate lidar next to a well-seen camera: the error names the lidar (sensor=), so
+    # rigcal mocap can calibrate the camera without it
+    from rigcal.sim.mocap import paper_rig
+    from rigcal.targets.templates import diamond_target
+
+    rig, cam_obs = _camera_holds(np.random.default_rng(5), holds=4, frames=2)
+    target = diamond_target(0.5, 0.029, rows=6, cols=7, name="diamond")
+    T_rt = from_rt(matrix_from_rpy(np.radians([90.0, 0.0, -90.0])), [2.5, 0.0, 0.7])
+    rng = np.random.default_rng(6)
+    uv = rng.uniform(-0.15, 0.15, (300, 2))
+    pts_t = np.column_stack([uv, np.zeros(len(uv))]) + target.template.mean(axis=0)
+    T_lt = invert(rig.T_robot_lidar) @ T_rt
+    obs = [TargetObservation("lidar", "diamond", 1000 + k, T_rt, transform_points(T_lt, pts_t))
+           for k in range(3)]
+    sensors = [MocapSensor("lidar", SensorKind.LIDAR, sigma=0.01),
+               MocapSensor("camera", SensorKind.CAMERA, camera=rig.camera, sigma=1.0)]
+    with pytest.raises(ConvergenceError, match="sensor 'lidar': its measurements do not determine") as exc:
+        calibrate_mocap(sensors, obs + list(cam_obs),
+                        {"lidar": rig.T_robot_lidar, "camera": rig.T_robot_camera},
+                        {"diamond": TargetSurface.of(target)})
+    assert exc.value.sensor == "lidar"

@@ -2,7 +2,9 @@
 
 Exit codes: 0 calibrated and consistent; 1 error (bad input, or the data cannot determine the
 result); 2 command-line usage; 3 the result contradicts its own noise model (flagged by the
-consistency check): nothing is written unless --force, which writes it with the verdict.
+consistency check): nothing is written unless --force, which writes it with the verdict;
+4 partial (``rigcal mocap``): the other sensors were calibrated and written, but at least one
+sensor could not be and is reported as not calibrated with its reason (3 takes precedence).
 """
 
 from __future__ import annotations
@@ -20,6 +22,8 @@ from rigcal.errors import RigcalError
 
 #: exit code of a result the consistency check flagged
 EXIT_FLAGGED = 3
+#: exit code of a partial result: some sensors calibrated (and written), others not (rigcal mocap)
+EXIT_PARTIAL = 4
 
 EPILOG_CALIBRATE = """examples:
   rigcal calibrate rig.yaml --mode fcpe --out results/
@@ -150,7 +154,11 @@ def _parser() -> argparse.ArgumentParser:
         "to the robot frame in one problem - no overlap between sensors needed. Writes "
         "calibration.yaml (T_robot_sensor), extrinsics.json, diagnostics.csv (every measurement "
         "kept or rejected and why) and overlay images. The config format is in docs/mocap.md.",
-        epilog="example:\n  rigcal mocap mocap.yaml --out mocap_out/",
+        epilog="example:\n  rigcal mocap mocap.yaml --out mocap_out/\n\n"
+        "exit codes: 0 consistent result written; 1 error (also when no sensor can be calibrated);\n"
+        "2 usage; 3 the result contradicts its own noise model (nothing written unless --force);\n"
+        "4 partial: the other sensors calibrated and written, some sensor not calibrated (each\n"
+        "listed with its reason; in calibration.yaml and --json under not_calibrated)",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     m.add_argument("config", metavar="CONFIG.yaml")
@@ -517,8 +525,17 @@ def _cmd_mocap(args, console) -> int:
     with _progress_bar(console) as bar:
         task = bar.add_task("extracting", total=None)
         run = run_mocap(config, progress=lambda d, t: bar.update(task, completed=d, total=t))
+
+    def not_calibrated() -> None:
+        from rich.markup import escape
+
+        for name, why in run.not_calibrated.items():
+            console.print(f"[bold yellow]not calibrated[/bold yellow]: {escape(name)}: {escape(why)}",
+                          soft_wrap=True)
+
     if run.result.flagged and not args.force:
         _summary(run.result, console)
+        not_calibrated()
         return _not_written(console)
     write_mocap_outputs(run, args.out, max_overlays=args.max_overlays)
     if args.json:
@@ -531,8 +548,17 @@ def _cmd_mocap(args, console) -> int:
         table.add_row(*(f"{v:.4g}" if isinstance(v, float) else str(v) for v in row))
     console.print(table)
     _summary(run.result, console, verdict_first=False)
-    console.print(f"results written to {args.out}/" + (" (FLAGGED, written with --force)" if run.result.flagged else ""))
-    return EXIT_FLAGGED if run.result.flagged else 0
+    not_calibrated()
+    notes = []
+    if run.result.flagged:
+        notes.append("FLAGGED, written with --force")
+    if run.not_calibrated:
+        notes.append(f"partial: {len(run.not_calibrated)} of {len(config.sensors)} sensors not calibrated "
+                     f"({', '.join(run.not_calibrated)}), exit code {EXIT_PARTIAL}")
+    console.print(f"results written to {args.out}/" + (f" ({'; '.join(notes)})" if notes else ""))
+    if run.result.flagged:
+        return EXIT_FLAGGED
+    return EXIT_PARTIAL if run.not_calibrated else 0
 
 
 def _cmd_urdf(args, console) -> int:

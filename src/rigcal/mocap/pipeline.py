@@ -27,8 +27,11 @@ Charron et al., section III, end to end:
    their target keypoints placed by the MCS; without correspondences, a lidar point's distance
    to the target's surface and a pixel's to the nearest projected template point.
 
-A sensor without any kept measurement, or a target no sensor measured, is an InputError that
-lists the rejection reasons. :func:`write_mocap_outputs` writes the result files
+A sensor without any kept measurement (a target it never sees, a mocap dropout over all its
+holds) or whose measurements leave its pose undetermined is *not calibrated*: the others are
+calibrated without it and it is reported with its reason (``MocapRun.not_calibrated``,
+``CalibrationResult.not_calibrated``); only when no sensor is left is it an error, listing every
+reason. A target no sensor measured is an InputError that lists the rejection reasons. :func:`write_mocap_outputs` writes the result files
 (:func:`rigcal.io.results.write_results`), ``extrinsics.json`` (the original tool's format,
 ``robot_frame`` <- ``frame_id``), ``diagnostics.csv`` (one row per frame and target) and
 overlay images (:mod:`rigcal.report.overlay`).
@@ -50,7 +53,7 @@ from typing import Any, Callable, Mapping
 import numpy as np
 
 from rigcal.dataset import SensorKind
-from rigcal.errors import ConvergenceError, InputError
+from rigcal.errors import ConvergenceError, InputError, RigcalError
 from rigcal.extract.guidance import camera_view, lidar_view, motion_check
 from rigcal.extract.result import NO_CLUSTER, NO_CONTOUR, NO_POSE_DATA, TARGET_MOVING, ExtractionFailure
 from rigcal.geometry.se3 import invert, transform_points
@@ -162,6 +165,9 @@ class MocapRun:
     fit: MocapFit | None = None
     #: extraction passes run (coarse to fine: wider searches, then guided by the calibration)
     passes: int = 1
+    #: sensors left out of ``result``, each with the reason (no frames, every measurement
+    #: rejected, or a pose its measurements do not determine); also ``result.not_calibrated``
+    not_calibrated: Mapping[str, str] = field(default_factory=lambda: MappingProxyType({}))
 
     @property
     def final(self) -> dict[str, np.ndarray]:
@@ -500,7 +506,7 @@ def _close(A: np.ndarray, B: np.ndarray) -> bool:
 
 def _extract_all(config: MocapConfig, ctx: _Context, sensors: dict[str, SensorSpec],
                  progress: Callable[[int, int], None] | None):
-    """One pass over the recording's frames with the guidance in ``ctx``."""
+    """One pass over the recording's frames of ``sensors`` with the guidance in ``ctx``."""
     from rigcal.io.folder import open_any
 
     diagnostics: list[MeasurementDiagnostic] = []
@@ -511,7 +517,7 @@ def _extract_all(config: MocapConfig, ctx: _Context, sensors: dict[str, SensorSp
     with open_any(config.recording) as rec:
         plan = {}
         total = 0
-        for s in config.sensors:
+        for s in sensors.values():
             try:
                 total += rec.count(s.topic)
             except InputError as exc:
@@ -573,34 +579,62 @@ def _label_holds(observations: list[TargetObservation], ctx: _Context) -> list[T
     return [replace(o, hold=h) for o, h in zip(observations, labels)]
 
 
-def _check_kept(config: MocapConfig, sensors, diagnostics, observations, frames_read,
-                widen: Mapping[str, float]) -> None:
-    by_sensor = {s: Counter() for s in sensors}
-    by_target = {t: Counter() for t in config.targets}
+def _unusable(config: MocapConfig, sensors: Mapping[str, SensorSpec], diagnostics,
+              observations, frames_read, widen: Mapping[str, float]) -> dict[str, str]:
+    """sensor -> why it has nothing to be calibrated with: no frames on its topic, or every
+    measurement rejected (with the rejection counts)."""
+    by_sensor: dict[str, Counter] = {s: Counter() for s in sensors}
     for d in diagnostics:
-        if not d.kept:
+        if not d.kept and d.sensor in by_sensor:
             by_sensor[d.sensor][d.reason] += 1
-            by_target[d.target][d.reason] += 1
     kept_sensor = Counter(o.sensor for o in observations)
-    kept_target = Counter(o.target for o in observations)
+    out: dict[str, str] = {}
     for name, spec in sensors.items():
         if frames_read[name] == 0:
-            raise InputError(f"{config.source}: sensor '{name}': no frames on topic "
-                             f"{spec.topic} in {config.recording}")
-        if kept_sensor[name] == 0:
+            out[name] = f"no frames on topic {spec.topic} in {config.recording}"
+        elif kept_sensor[name] == 0:
             wider = (f"; also searched in a {widen[name]:g} times wider window: is its initial "
                      f"calibration right?" if widen.get(name, 1.0) > 1.0 else "")
-            raise InputError(
-                f"{config.source}: sensor '{name}': every measurement was rejected "
-                f"({frames_read[name]} frames x {len(config.targets)} targets; rejections: "
-                f"{_rejection_text(by_sensor[name])}); nothing to calibrate it with{wider}"
+            out[name] = (
+                f"every measurement was rejected ({frames_read[name]} frames x "
+                f"{len(config.targets)} targets; rejections: {_rejection_text(by_sensor[name])}); "
+                f"nothing to calibrate it with{wider}"
             )
+    return out
+
+
+def _check_targets(config: MocapConfig, diagnostics, observations) -> None:
+    by_target: dict[str, Counter] = {t: Counter() for t in config.targets}
+    for d in diagnostics:
+        if not d.kept:
+            by_target[d.target][d.reason] += 1
+    kept_target = Counter(o.target for o in observations)
     for name in config.targets:
         if kept_target[name] == 0:
             raise InputError(
                 f"{config.source}: target '{name}' was never extracted by any sensor: "
                 f"rejections {_rejection_text(by_target[name])}"
             )
+
+
+def _own_reason(name: str, message: str) -> str:
+    """``message`` without a leading "sensor 'name': " or "camera 'name': "."""
+    for kind in ("sensor", "camera", "lidar"):
+        prefix = f"{kind} '{name}': "
+        if message.startswith(prefix):
+            return message[len(prefix):]
+    return message
+
+
+def _inconsistent(fit: MocapFit) -> dict[str, str]:
+    """sensor -> why its residuals fit no single pose (see :func:`refuse_inconsistent`)."""
+    return {
+        n: (f"its residuals scatter by {f.noise_sigma:.3g} {f.unit}, more than "
+            f"{_MAX_NOISE_RATIO:g} times its configured sigma {f.sigma_nominal:g} {f.unit}: its "
+            "measurements fit no single pose (a wrong match of the target, wrong intrinsics or "
+            "a far too small sigma)")
+        for n, f in fit.sensors.items() if f.noise_sigma > _MAX_NOISE_RATIO * f.sigma_nominal
+    }
 
 
 def refuse_inconsistent(fit: MocapFit, source: str = "mocap") -> None:
@@ -623,9 +657,17 @@ def refuse_inconsistent(fit: MocapFit, source: str = "mocap") -> None:
 def run_mocap(config: MocapConfig, progress: Callable[[int, int], None] | None = None
               ) -> MocapRun:
     """Run the pipeline of the module docstring; ``progress(done, total)`` is called after
-    every sensor frame. Raises InputError for unreadable inputs, a sensor without any kept
-    measurement or a target no sensor measured (with the rejection counts), and
-    ConvergenceError when the calibration does not converge."""
+    every sensor frame.
+
+    One sensor's trouble does not stop the others: a sensor with no frames, with every
+    measurement rejected (a target it never sees, a mocap dropout over all its holds), or
+    whose measurements leave its pose undetermined (the solver names it) is left out, the
+    others are calibrated without it, and it is reported in ``MocapRun.not_calibrated`` (and
+    ``result.not_calibrated``) with the reason. Raises InputError for unreadable inputs (an
+    unknown topic, a wrong message type, a missing file), a target no sensor measured, or when
+    no sensor at all can be calibrated (one message naming every sensor's reason;
+    ConvergenceError instead when a reason came from the solver), and ConvergenceError when
+    the calibration as a whole does not converge."""
     robot_stream, target_streams = read_mocap_streams(config)
     extrinsics = _initial_extrinsics(config)
     initial = config.initial_T_robot_sensor(extrinsics)
@@ -642,46 +684,114 @@ def run_mocap(config: MocapConfig, progress: Callable[[int, int], None] | None =
         MocapSensor(s.name, s.kind, camera=s.camera, sigma=s.sigma, frame_id=s.frame_id)
         for s in config.sensors
     ]
+    # a sensor with nothing to be calibrated with (no frames, every measurement rejected) or
+    # whose own measurements leave its pose undetermined is given up: the others are
+    # calibrated without it and it is reported in ``not_calibrated`` with the reason; its
+    # diagnostics rows from the pass that gave it up are kept, it is not read again
+    given_up: dict[str, str] = {}
+    from_solver: set[str] = set()
+    carried_diags: list[MeasurementDiagnostic] = []
+    carried_obs: list[TargetObservation] = []
+    carried_frames: Counter = Counter()
+
+    def give_up(reasons: Mapping[str, str], solver: bool) -> None:
+        nonlocal diagnostics, observations
+        for n, why in reasons.items():
+            given_up[n] = why
+            if solver:
+                from_solver.add(n)
+            carried_frames[n] = frames_read.pop(n, 0)
+            overlays.pop(n, None)
+            log.warning("%s: sensor '%s' is not calibrated: %s", config.source, n, why)
+        carried_diags.extend(d for d in diagnostics if d.sensor in reasons)
+        carried_obs.extend(o for o in observations if o.sensor in reasons)
+        diagnostics = [d for d in diagnostics if d.sensor not in reasons]
+        observations = [o for o in observations if o.sensor not in reasons]
+
+    def nothing_left() -> RigcalError:
+        text = "; ".join(f"sensor '{n}': {given_up[n]}" for n in sensors if n in given_up)
+        cls = ConvergenceError if from_solver else InputError
+        return cls(f"{config.source}: no sensor can be calibrated: {text}")
+
+    def fit_active(may_widen: bool):
+        """The fit of the sensors not given up; a sensor the solver names as undetermined is
+        given up and the rest fitted again. None when a wider search is wanted first."""
+        while True:
+            active = [m for m in mocap_sensors if m.name not in given_up]
+            try:
+                return calibrate_mocap_fit(active, observations,
+                                           {m.name: ctx.initial[m.name] for m in active},
+                                           templates, config.options)
+            except ConvergenceError as exc:
+                # too little seen to determine a pose (e.g. the lidar kept a single hold, the
+                # others predicted out of its view): search the sensors with few holds wider
+                holds = Counter(o.sensor for o in {(o.sensor, o.hold): o for o in observations}.values())
+                few = [m.name for m in active if holds[m.name] < 3 and ctx.widen.get(m.name, 1.0) < _WIDEN]
+                if few and may_widen:
+                    for n in few:
+                        ctx.widen[n] = _WIDEN
+                    return None
+                if exc.sensor is None or exc.sensor not in {m.name for m in active}:
+                    raise
+                give_up({exc.sensor: _own_reason(exc.sensor, str(exc))}, solver=True)
+                if len(given_up) == len(sensors):
+                    raise nothing_left() from None
+
     # coarse to fine: a sensor that kept nothing is searched again in a wider window; every
     # pass after the first is guided by the previous calibration, until it no longer moves
     fit = None
     for attempt in range(_MAX_PASSES):
+        active_specs = {n: s for n, s in sensors.items() if n not in given_up}
         diagnostics, observations, overlays, frames_read, first_t = _extract_all(
-            config, ctx, sensors, progress if attempt == 0 else None)
+            config, ctx, active_specs, progress if attempt == 0 else None)
         kept_sensor = Counter(o.sensor for o in observations)
         # a wider search helps only where something was searched for and not found
         searched = {d.sensor for d in diagnostics
                     if not d.kept and d.reason not in (NO_POSE_DATA, TARGET_MOVING)}
-        empty = [n for n in sensors if kept_sensor[n] == 0 and n in searched]
+        empty = [n for n in active_specs if kept_sensor[n] == 0 and n in searched]
         if empty and attempt < _MAX_PASSES - 1 and any(ctx.widen.get(n, 1.0) < _WIDEN for n in empty):
             for n in empty:
                 ctx.widen[n] = _WIDEN
             continue
-        _check_kept(config, sensors, diagnostics, observations, frames_read, ctx.widen)
+        lost = _unusable(config, active_specs, diagnostics, observations, frames_read, ctx.widen)
+        if lost:
+            give_up(lost, solver=False)
+        if len(given_up) == len(sensors):
+            raise nothing_left()
+        _check_targets(config, diagnostics + carried_diags, observations + carried_obs)
         observations = _label_holds(observations, ctx)
-        try:
-            fit = calibrate_mocap_fit(mocap_sensors, observations, ctx.initial, templates, config.options)
-        except ConvergenceError:
-            # too little seen to determine a pose (e.g. the lidar kept a single hold, the
-            # others predicted out of its view): search the sensors with few holds wider
-            holds = Counter(o.sensor for o in {(o.sensor, o.hold): o for o in observations}.values())
-            few = [n for n in sensors if holds[n] < 3 and ctx.widen.get(n, 1.0) < _WIDEN]
-            if not few or attempt == _MAX_PASSES - 1:
-                raise
-            for n in few:
-                ctx.widen[n] = _WIDEN
+        fit = fit_active(may_widen=attempt < _MAX_PASSES - 1)
+        if fit is None:
             continue
         final = {n: e.T_reference_sensor for n, e in fit.result.sensors.items()}
-        moved = [n for n in sensors if not _close(final[n], ctx.initial[n])]
+        moved = [n for n in final if not _close(final[n], ctx.initial[n])]
         if not moved or attempt == _MAX_PASSES - 1:
             break
-        ctx.initial = {n: np.array(final[n]) for n in sensors}
+        ctx.initial = {**ctx.initial, **{n: np.array(T) for n, T in final.items()}}
         ctx.widen = {}
     assert fit is not None
+    # a sensor whose residuals scatter far beyond its sigma fits no single pose: refused, and
+    # the others fitted again without it (refuse_inconsistent when it is the only one)
+    while True:
+        bad = _inconsistent(fit)
+        if not bad or len(bad) == len(fit.sensors):
+            break
+        give_up(bad, solver=True)
+        fit = fit_active(may_widen=False)
+        assert fit is not None
+    if given_up and _inconsistent(fit):
+        give_up(_inconsistent(fit), solver=True)
+        raise nothing_left()
     refuse_inconsistent(fit, config.source)
     weak = {n: weak_directions(e.std) for n, e in fit.result.sensors.items() if n in sensors}
-    result = replace(fit.result, verdict=mocap_verdict(fit, weak))
+    result = replace(fit.result, verdict=mocap_verdict(fit, weak),
+                     not_calibrated={n: given_up[n] for n in sensors if n in given_up})
     final = {n: e.T_reference_sensor for n, e in result.sensors.items()}
+    if carried_diags:  # back in frame order
+        diagnostics = sorted(diagnostics + carried_diags, key=lambda d: d.t_ns)
+        observations = sorted(observations + carried_obs, key=lambda o: o.t_ns)
+        frames_read = frames_read + carried_frames
+        first_t = min([t for t in (first_t, *(d.t_ns for d in carried_diags)) if t is not None])
 
     it = iter(observations)
     filled = []
@@ -691,7 +801,8 @@ def run_mocap(config: MocapConfig, progress: Callable[[int, int], None] | None =
             s, tgt = sensors[d.sensor], config.targets[d.target].target
             d = replace(d,
                         residual_initial=observation_residual(obs, s, tgt, initial[d.sensor], templates[d.target]),
-                        residual_final=observation_residual(obs, s, tgt, final[d.sensor], templates[d.target]))
+                        residual_final=(observation_residual(obs, s, tgt, final[d.sensor], templates[d.target])
+                                        if d.sensor in final else math.nan))
         filled.append(d)
     return MocapRun(
         config=config,
@@ -700,11 +811,12 @@ def run_mocap(config: MocapConfig, progress: Callable[[int, int], None] | None =
         observations=tuple(observations),
         diagnostics=tuple(filled),
         frames=MappingProxyType(dict(frames_read)),
-        overlays=tuple(o for s in sensors for o in overlays[s]),
+        overlays=tuple(o for s in sensors for o in overlays.get(s, ())),
         mocap_frame=robot_stream.frame_id,
         first_t_ns=int(first_t or 0),
         fit=fit,
         passes=attempt + 1,
+        not_calibrated=MappingProxyType(dict(result.not_calibrated)),
     )
 
 
@@ -741,20 +853,22 @@ def summary_rows(run: MocapRun) -> list[tuple]:
     """One row per sensor, columns :data:`SUMMARY_COLUMNS`: frames read, kept and rejected
     (frame, target) rows, the rejections by reason (``"reason: n, ..."``), the RMS residual
     over kept measurements under the initial and the final calibration (in ``unit``), and how
-    far the calibration moved from the initial one [mm, deg]."""
+    far the calibration moved from the initial one [mm, deg] (NaN for a sensor that is not
+    calibrated, as are its final residuals)."""
     rows = []
     final = run.final
     for s in run.config.sensors:
         mine = [d for d in run.diagnostics if d.sensor == s.name]
         kept = [d for d in mine if d.kept]
         rej = Counter(d.reason for d in mine if not d.kept)
-        T0, T1 = run.initial[s.name], final[s.name]
+        T0, T1 = run.initial[s.name], final.get(s.name)
         rows.append((
             s.name, s.kind.value, int(run.frames.get(s.name, 0)), len(kept), len(mine) - len(kept),
             _rejection_text(rej) if rej else "",
             _rms([d.residual_initial for d in kept]), _rms([d.residual_final for d in kept]),
             "px" if s.kind is SensorKind.CAMERA else "m",
-            float(np.linalg.norm(T1[:3, 3] - T0[:3, 3]) * 1e3),
+            math.nan if T1 is None else float(np.linalg.norm(T1[:3, 3] - T0[:3, 3]) * 1e3),
+            math.nan if T1 is None else
             math.degrees(float(np.linalg.norm(so3_log(T0[:3, :3].T @ T1[:3, :3])))),
         ))
     return rows
@@ -766,6 +880,8 @@ def write_mocap_outputs(run: MocapRun, out_dir: str | os.PathLike[str],
     (``robot_frame`` <- each sensor's ``frame_id``, the original tool's layout),
     ``diagnostics.csv`` and up to ``max_overlays`` (default: the configuration's
     ``overlays_per_sensor``) overlay PNGs per sensor in ``overlays/``; every file atomically.
+    A sensor that is not calibrated has no transform in these files (``calibration.yaml``
+    lists it under ``not_calibrated`` with the reason) but its rows in ``diagnostics.csv``.
     Returns the written paths."""
     from rigcal.io.atomic import atomic_write_text
     from rigcal.io.results import write_results
@@ -777,12 +893,14 @@ def write_mocap_outputs(run: MocapRun, out_dir: str | os.PathLike[str],
     paths = list(write_results(run.result, out))
     final = run.final
     ext = Extrinsics(
-        {(run.config.robot_frame, s.frame_id): final[s.name] for s in run.config.sensors},
+        {(run.config.robot_frame, s.frame_id): final[s.name] for s in run.config.sensors
+         if s.name in final},
         str(out / EXTRINSICS_NAME),
         {"type": "extrinsic_calibration", "method": "rigcal mocap"},
     )
     paths.append(write_extrinsics_json(out / EXTRINSICS_NAME, ext))
     paths.append(atomic_write_text(out / DIAGNOSTICS_NAME, diagnostics_csv_text(run)))
     if limit > 0:
-        paths += write_overlays(run.overlays, run.initial, final, out / OVERLAY_DIR, limit)
+        paths += write_overlays([o for o in run.overlays if o.sensor in final], run.initial, final,
+                                out / OVERLAY_DIR, limit)
     return paths

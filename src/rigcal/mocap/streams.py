@@ -23,8 +23,13 @@ Readers:
   ``nav_msgs/Odometry`` topics, one stream per topic.
 
 Bag messages are stamped with their header stamp (the bag's receive time when the stamp is
-zero). Samples with non-finite numbers or a zero quaternion (what bridges publish for an
-occluded body) are dropped and logged; the gap they leave is refused by :func:`interpolate`.
+zero). Samples with a NaN or a zero quaternion (what bridges publish for an occluded body) are
+mocap dropouts: dropped, counted and mentioned in a warning; the gap they leave is refused by
+:func:`interpolate`. Samples that are neither a pose nor a dropout - an infinite number, a
+position beyond :data:`MAX_POSITION_M` (1e4 m), a quaternion whose norm is off 1 by more than
+1e-3 (it is not silently normalised) - are refused with an InputError naming the bag, the
+topic, the message and the field. In a CSV an occlusion is a row with all seven pose fields
+empty or nan; a row with only some of them missing is refused (see :func:`parse_pose_csv`).
 """
 
 from __future__ import annotations
@@ -69,6 +74,10 @@ DEFAULT_MAX_GAP_S = 0.05
 _NS = 1_000_000_000
 _RIGID_TOL = 1e-6
 _QUAT_NORM_TOL = 1e-3
+#: largest |x|, |y|, |z| [m] of a mocap position: a motion-capture volume is metres to tens of
+#: metres across, so anything beyond is a unit mistake (millimetres?) or a corrupt sample
+MAX_POSITION_M = 1e4
+_FIELDS = ("x", "y", "z", "qx", "qy", "qz", "qw")
 
 TF_MSGTYPE = "tf2_msgs/msg/TFMessage"
 TRANSFORM_STAMPED = "geometry_msgs/msg/TransformStamped"
@@ -366,9 +375,13 @@ def parse_pose_csv(text: str, name: str, source: str = "CSV", *, time_unit: str 
     x, y, z are metres in the mocap frame; the quaternion is (x, y, z, w), normalised after a
     check that its norm is within 1e-3 of 1.
 
-    Blank lines and lines starting with ``#`` are skipped; a row with ``nan`` or empty pose
-    fields (an occluded body) is dropped and logged. Out-of-order or duplicate stamps, bad
-    numbers and short rows raise InputError naming ``source`` and the line number."""
+    Blank lines and lines starting with ``#`` are skipped; a row whose seven pose fields are
+    all ``nan`` or empty (an occluded body) is a dropout: dropped, counted and mentioned in a
+    warning. A row with only some pose fields missing is corrupt and refused, as are infinite
+    values, a position beyond :data:`MAX_POSITION_M` and a quaternion whose norm is off 1 by
+    more than 1e-3 (a zero or nan quaternion with a position is not an occlusion marker).
+    Out-of-order or duplicate stamps, bad numbers and short rows raise InputError naming
+    ``source``, the line number and the column."""
     header: dict[str, int] | None = None
     header_line = 0
     rows: list[tuple[int, Decimal, list[float]]] = []
@@ -416,12 +429,28 @@ def parse_pose_csv(text: str, name: str, source: str = "CSV", *, time_unit: str 
                 raise InputError(
                     f"{source}: line {lineno}: column {col}: expected a number, got {cell!r}"
                 ) from None
-        if not all(math.isfinite(v) for v in vals):
-            if any(math.isinf(v) for v in vals):
-                raise InputError(f"{source}: line {lineno}: infinite pose value")
+        missing = [c for c, v in zip(CSV_COLUMNS[1:], vals) if math.isnan(v)]
+        if len(missing) == len(vals):  # an occluded body: every pose column empty or nan
             dropped += 1
             rows.append((lineno, t_val, []))
             continue
+        for col, v in zip(CSV_COLUMNS[1:], vals):
+            if math.isinf(v):
+                raise InputError(f"{source}: line {lineno}: infinite pose value in column {col} "
+                                 f"({cells[header[col]]!r}); expected a finite number")
+        if missing:
+            col = missing[0]
+            raise InputError(
+                f"{source}: line {lineno}: column {col}: expected a finite number, got "
+                f"{cells[header[col]]!r} (an occluded sample leaves all seven pose columns empty "
+                f"or nan; a row with only {', '.join(missing)} missing is corrupt)"
+            )
+        for col, v in zip(CSV_COLUMNS[1:4], vals[:3]):
+            if abs(v) > MAX_POSITION_M:
+                raise InputError(
+                    f"{source}: line {lineno}: column {col}: position {v:g} m is beyond "
+                    f"{MAX_POSITION_M:g} m; expected metres in the mocap frame (millimetres?)"
+                )
         norm = math.sqrt(sum(v * v for v in vals[3:]))
         if abs(norm - 1.0) > _QUAT_NORM_TOL:
             raise InputError(
@@ -454,8 +483,8 @@ def parse_pose_csv(text: str, name: str, source: str = "CSV", *, time_unit: str 
             )
     kept = [k for k, r in enumerate(rows) if r[2]]
     if dropped:
-        log.info("%s: dropped %d of %d rows with missing pose values (occlusions)", source,
-                 dropped, len(rows))
+        log.warning("%s: dropped %d of %d rows with missing pose values (occlusions)", source,
+                    dropped, len(rows))
     if not kept:
         raise InputError(f"{source}: every row has missing pose values; no samples left")
     data = np.array([rows[k][2] for k in kept], dtype=float)
@@ -523,11 +552,46 @@ def _pose_numbers(translation: Any, rotation: Any) -> tuple[float, ...]:
             float(rotation.x), float(rotation.y), float(rotation.z), float(rotation.w))
 
 
+def _dropouts(v: np.ndarray) -> np.ndarray:
+    """(N,) rows (x, y, z, qx, qy, qz, qw) a mocap bridge publishes for a body it lost: a NaN
+    anywhere, or an all-zero quaternion."""
+    return np.any(np.isnan(v), axis=1) | np.all(v[:, 3:] == 0.0, axis=1)
+
+
+def _refuse_bad_numbers(v: np.ndarray, t_ns: Sequence[int], what: str, source: str) -> None:
+    """InputError for the first row that is not a dropout (:func:`_dropouts`) yet not a pose:
+    an infinite number, a position beyond :data:`MAX_POSITION_M` or a quaternion whose norm
+    is off 1 by more than 1e-3. Names the message (its index among ``what``'s messages, 0
+    first, and its stamp), the field and what was expected."""
+    keep = ~_dropouts(v)
+    with np.errstate(invalid="ignore", over="ignore"):
+        inf = np.isinf(v) & keep[:, None]
+        far = (np.abs(v[:, :3]) > MAX_POSITION_M) & keep[:, None]
+        norm = np.linalg.norm(v[:, 3:], axis=1)
+        off = keep & ~(np.abs(norm - 1.0) <= _QUAT_NORM_TOL)
+    bad = np.any(inf, axis=1) | np.any(far, axis=1) | off
+    if not np.any(bad):
+        return
+    k = int(np.flatnonzero(bad)[0])
+    where = f"{source}: {what}: message {k} (stamp {int(t_ns[k])} ns)"
+    if np.any(inf[k]):
+        j = int(np.flatnonzero(inf[k])[0])
+        raise InputError(f"{where}: {_FIELDS[j]} is {v[k, j]}; expected a finite number")
+    if np.any(far[k]):
+        j = int(np.flatnonzero(far[k])[0])
+        raise InputError(f"{where}: position {_FIELDS[j]} = {v[k, j]:g} m is beyond "
+                         f"{MAX_POSITION_M:g} m; expected metres in the mocap frame")
+    raise InputError(f"{where}: quaternion (qx, qy, qz, qw) = ({', '.join(f'{x:g}' for x in v[k, 3:])}) "
+                     f"has norm {norm[k]:.6g}; expected a unit quaternion (norm within "
+                     f"{_QUAT_NORM_TOL:g} of 1; all zeros or NaN marks a lost body)")
+
+
 def _matrices(numbers: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(T (N, 4, 4), valid (N,)) from rows (x, y, z, qx, qy, qz, qw); rows with non-finite
-    numbers or a zero quaternion (an occluded body) are not valid (their T is identity)."""
+    """(T (N, 4, 4), valid (N,)) from rows (x, y, z, qx, qy, qz, qw); dropouts
+    (:func:`_dropouts`: an occluded body) are not valid (their T is identity). Check the rows
+    with :func:`_refuse_bad_numbers` first."""
     v = np.asarray(numbers, dtype=float).reshape(-1, 7)
-    valid = np.all(np.isfinite(v), axis=1) & (np.linalg.norm(v[:, 3:], axis=1) >= 1e-6)
+    valid = ~_dropouts(v)
     q = np.where(valid[:, None], v[:, 3:], [0.0, 0.0, 0.0, 1.0])
     p = np.where(valid[:, None], v[:, :3], 0.0)
     return from_rt(quat_xyzw_to_matrix(q), p), valid
@@ -547,12 +611,17 @@ class _Samples:
         self.numbers.append(numbers)
 
     def valid_samples(self, source: str) -> tuple[np.ndarray, np.ndarray]:
-        """(t (N,), T (N, 4, 4)) of the valid samples in message order (invalid ones logged)."""
-        T, valid = _matrices(np.array(self.numbers, dtype=float))
+        """(t (N,), T (N, 4, 4)) of the valid samples in message order. Dropouts (a NaN or a
+        zero quaternion: a lost body) are skipped, counted and mentioned in a warning; an
+        infinite number, a position beyond :data:`MAX_POSITION_M` or a non-unit quaternion is
+        an InputError naming the message."""
+        v = np.array(self.numbers, dtype=float).reshape(-1, 7)
+        _refuse_bad_numbers(v, self.t, self.what, source)
+        T, valid = _matrices(v)
         dropped = int((~valid).sum())
         if dropped:
-            log.info("%s: %s: dropped %d samples with non-finite values or a zero quaternion",
-                     source, self.what, dropped)
+            log.warning("%s: %s: dropped %d samples (of %d) as mocap dropouts (NaN values or "
+                        "a zero quaternion)", source, self.what, dropped, valid.size)
         if not np.any(valid):
             raise InputError(f"{source}: {self.what}: no valid pose samples "
                              f"({dropped} dropped as invalid)")
@@ -621,6 +690,8 @@ def _read_tf_edges(rec: Any, topics: Sequence[str], static_topics: Iterable[str]
             edges.parent[child] = parent
             numbers = _pose_numbers(tr.transform.translation, tr.transform.rotation)
             if topic in static_set:
+                _refuse_bad_numbers(np.array([numbers]), [_stamp(tr.header, recv_ns)],
+                                    f"topic {topic}: static transform {parent} -> {child}", source)
                 T, ok = _matrices(np.array(numbers))
                 if not ok[0]:
                     raise InputError(f"{source}: topic {topic}: static transform "

@@ -780,7 +780,7 @@ def calibrate_mocap_fit(
                 f"camera '{s.name}': under the initial calibration only {100 * valid:.0f} % of its "
                 f"target points project into the image (is the initial T_robot_sensor right? a "
                 f"start behind the camera sees nothing) and PnP of its measured corners could not "
-                f"place the camera either"
+                f"place the camera either", sensor=s.name
             )
         poses[s.name], starts[s.name] = T, "pnp"
     kinds = {s.name: s.kind for s in sensors}
@@ -844,7 +844,8 @@ def calibrate_mocap_fit(
             if valid < MIN_VALID_PROJECTION:
                 raise ConvergenceError(
                     f"camera '{s.name}': only {100 * valid:.0f} % of its target points project into "
-                    f"the image under the estimate: its pose is not determined by its measurements")
+                    f"the image under the estimate: its pose is not determined by its measurements",
+                    sensor=s.name)
     estimates, rmse, reproj, fits, noise = {}, {}, {}, {}, {}
     errors: dict[str, list[np.ndarray]] = {s.name: [] for s in sensors}
     for b, r in zip(prob.observations, sol.residuals):
@@ -857,7 +858,7 @@ def calibrate_mocap_fit(
             raise ConvergenceError(
                 f"sensor '{s.name}': its measurements do not determine its pose (their information "
                 f"matrix is singular: too few measured points, or none that depend on the pose); "
-                f"no estimate is returned")
+                f"no estimate is returned", sensor=s.name)
         estimates[s.name] = SensorEstimate(
             name=s.name, kind=s.kind, frame_id=s.frame_id, T_reference_sensor=poses[s.name].copy(),
             covariance=cov, std=pose_std(poses[s.name], cov),

@@ -105,6 +105,10 @@ class CalibrationResult:
     noise_model: dict[str, dict[str, float]] = field(default_factory=dict)
     #: the consistency check (:mod:`rigcal.problem.consistency`); None: not checked
     verdict: Any = None
+    #: sensors left out of the result, each with the reason (motion-capture calibration: a
+    #: sensor that never saw a target, or whose measurements leave its pose undetermined,
+    #: while the others were calibrated)
+    not_calibrated: dict[str, str] = field(default_factory=dict)
 
     @property
     def flagged(self) -> bool:
@@ -143,6 +147,7 @@ class CalibrationResult:
                 }
                 for name, est in self.sensors.items()
             },
+            "not_calibrated": {k: str(v) for k, v in self.not_calibrated.items()},
             "relative": {
                 key: {
                     "to": rel.to,

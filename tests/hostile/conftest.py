@@ -114,3 +114,53 @@ def limited():
     if not hasattr(os, "fork"):
         pytest.skip("needs os.fork to run each case under a memory limit")
     return run_limited
+
+
+# ---------------------------------------------------------------------------------------------
+# fuzzing: valid files mutated the way broken and hostile files differ from good ones
+
+_NASTY_NUMBERS = ["nan", "NaN", "inf", "-inf", "1.797e308", "1e309", "-1e400", "4.9e-324",
+                  "9" * 40, "0x1p5", "", "-", "1e", "0", "-0"]
+
+
+def mutated_text(seed: str):
+    """A hypothesis strategy: ``seed`` with a few edits (number swapped for a nasty one, bytes
+    flipped, lines dropped or repeated, truncation, CR-only or mixed line endings)."""
+    from hypothesis import strategies as st
+
+    def edit(text: str, op: int, k: int, nasty: str) -> str:
+        if not text:
+            return nasty
+        i = k % len(text)
+        if op == 0:  # replace the number at/after i
+            m = re.compile(r"-?\d+(\.\d+)?([eE][-+]?\d+)?").search(text, i) or re.search(r"\d+", text)
+            return text if m is None else text[:m.start()] + nasty + text[m.end():]
+        if op == 1:
+            return text[:i]
+        if op == 2:
+            return text[:i] + chr((ord(text[i]) ^ (1 << (k % 7))) or 1) + text[i + 1:]
+        lines = text.split("\n")
+        j = k % len(lines)
+        if op == 3:
+            return "\n".join(lines[:j] + lines[j + 1:])
+        if op == 4:
+            return "\n".join(lines[:j] + [lines[j]] * 3 + lines[j:])
+        if op == 5:
+            return text.replace("\n", "\r")
+        return text[:i] + nasty + text[i:]
+
+    ops = st.lists(st.tuples(st.integers(0, 6), st.integers(0, 1 << 30), st.sampled_from(_NASTY_NUMBERS)),
+                   min_size=1, max_size=4)
+    return ops.map(lambda steps: _apply(seed, steps, edit))
+
+
+def _apply(seed, steps, edit):
+    text = seed
+    for op, k, nasty in steps:
+        text = edit(text, op, k, nasty)
+    return text
+
+
+@pytest.fixture
+def mutations():
+    return mutated_text

@@ -396,3 +396,14 @@ def test_csv_keeps_a_quaternion_within_tolerance_and_warns_about_occlusions(capl
     np.testing.assert_allclose(s.T[0, :3, :3], np.eye(3), atol=1e-12)  # normalised
     assert [r.levelname for r in caplog.records] == ["WARNING"]
     assert "occl.csv: dropped 1 of 3 rows with missing pose values" in caplog.text
+
+
+def test_nanosecond_stamps_declared_as_seconds_are_refused_with_a_hint():
+    text = "t,x,y,z,qx,qy,qz,qw\n" + "".join(
+        f"{1_700_000_000_000_000_000 + k * 10_000_000},0,0,0,0,0,0,1\n" for k in range(5)
+    )
+    with pytest.raises(InputError, match=r"robot.csv: line 2: column t: .*set time_unit: ns"):
+        parse_pose_csv(text, "robot", "robot.csv", time_unit="s")
+    assert parse_pose_csv(text, "robot", "robot.csv", time_unit="ns").t_ns[0] == 1_700_000_000_000_000_000
+    with pytest.raises(InputError, match="beyond"):
+        parse_pose_csv(text.replace("1700", "9" * 30, 1), "robot", "robot.csv", time_unit="ns")

@@ -517,6 +517,7 @@ def _cmd_absolute(args, console) -> int:
 def _cmd_mocap(args, console) -> int:
     from rich.table import Table
 
+    from rigcal.io.atomic import staged_folder
     from rigcal.io.results import result_to_json_text
     from rigcal.mocap.config import load_mocap_config
     from rigcal.mocap.pipeline import SUMMARY_COLUMNS, run_mocap, summary_rows, write_mocap_outputs
@@ -537,7 +538,8 @@ def _cmd_mocap(args, console) -> int:
         _summary(run.result, console)
         not_calibrated()
         return _not_written(console)
-    write_mocap_outputs(run, args.out, max_overlays=args.max_overlays)
+    with staged_folder(args.out) as stage:
+        write_mocap_outputs(run, stage, max_overlays=args.max_overlays)
     if args.json:
         sys.stdout.write(result_to_json_text(run.result) + "\n")
     _verdict_lines(run.result, console)

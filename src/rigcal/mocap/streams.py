@@ -45,6 +45,7 @@ from typing import Any, Iterable, Mapping, NamedTuple, Sequence
 import numpy as np
 
 from rigcal.errors import GeometryError, InputError
+from rigcal.io.limits import MAX_ABS
 from rigcal.geometry.se3 import from_rt
 from rigcal.geometry.so3 import so3_exp, so3_log
 
@@ -465,6 +466,15 @@ def parse_pose_csv(text: str, name: str, source: str = "CSV", *, time_unit: str 
 
     unit = _time_unit([r[1] for r in rows], time_unit, source)
     scale = Decimal(_NS) if unit == "s" else Decimal(1)
+    limit = Decimal(MAX_ABS["s"]) if unit == "s" else Decimal(2**63 - 1)
+    for lineno, t_val, _ in rows:
+        if abs(t_val) > limit:
+            hint = ("; the stamps look like nanoseconds: set time_unit: ns" if unit == "s"
+                    and abs(t_val) <= Decimal(2**63 - 1) else "")
+            raise InputError(
+                f"{source}: line {lineno}: column t: stamp {t_val} is beyond {limit:.3g} "
+                f"{unit} (time_unit {unit}){hint}"
+            )
     t_all: list[int] = []
     for lineno, t_val, _ in rows:
         t_ns = t_val * scale

@@ -28,7 +28,7 @@ import yaml
 from rigcal.absolute.result import AbsoluteResult
 from rigcal.errors import InputError
 from rigcal.io._text import load_yaml, read_text, type_name
-from rigcal.io.atomic import atomic_write_text
+from rigcal.io.atomic import atomic_write_text, mark_output
 from rigcal.io.tf_export import (
     ros1_launch_text,
     ros2_launch_py_text,
@@ -245,4 +245,6 @@ def write_absolute(
     ]
     for fmt in dict.fromkeys(launch):
         files.append((out / LAUNCH_NAMES[fmt], _LAUNCH_TEXT[fmt](transforms, parent)))
-    return [atomic_write_text(p, text) for p, text in files]
+    written = [atomic_write_text(p, text) for p, text in files]
+    mark_output(out)
+    return written

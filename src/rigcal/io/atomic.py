@@ -93,6 +93,12 @@ def _fsync_directory(directory: Path) -> None:
 OUTPUT_MARKER = ".rigcal-output"
 
 
+def mark_output(folder: str | os.PathLike[str]) -> Path:
+    """Mark ``folder`` as written by rigcal (:data:`OUTPUT_MARKER`), so that a later run may
+    replace it; every writer of a set of result files calls this."""
+    return atomic_write_bytes(Path(folder) / OUTPUT_MARKER, b"written by rigcal as one set of files\n")
+
+
 def _replaceable(target: Path) -> None:
     try:
         st = target.stat()
@@ -184,7 +190,7 @@ def staged_folder(path: str | os.PathLike[str]) -> Iterator[Path]:
         raise InputError(f"{target}: cannot create output folder: {exc.strerror or exc}") from None
     try:
         yield stage
-        (stage / OUTPUT_MARKER).write_bytes(b"written by rigcal as one set of files\n")
+        mark_output(stage)
         _fsync_directory(stage)
         _publish(stage, target)
     except BaseException as exc:

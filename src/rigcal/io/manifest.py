@@ -53,7 +53,7 @@ from rigcal.dataset import (
 from rigcal.errors import InputError
 from rigcal.io._text import is_number, load_yaml, read_text, type_name
 from rigcal.io.accumulator import accumulator_points_for_kind, parse_accumulator_yaml
-from rigcal.io.atomic import atomic_write_text
+from rigcal.io.atomic import atomic_write_text, mark_output
 from rigcal.io.detections_csv import format_detections_csv, parse_detections_csv
 from rigcal.io.ignore import parse_ignore_yaml
 
@@ -458,4 +458,6 @@ def write_dataset(dataset: Dataset, out_dir: str | os.PathLike[str]) -> Path:
     files = {s.name: f"{s.name}.csv" for s in dataset.sensors}
     for s in dataset.sensors:
         atomic_write_text(out / files[s.name], format_detections_csv(s.points, s.kind))
-    return atomic_write_text(out / MANIFEST_NAME, format_manifest(dataset, files))
+    path = atomic_write_text(out / MANIFEST_NAME, format_manifest(dataset, files))
+    mark_output(out)
+    return path

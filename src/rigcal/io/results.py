@@ -23,7 +23,7 @@ import yaml
 
 from rigcal.errors import InputError
 from rigcal.geometry.se3 import invert
-from rigcal.io.atomic import atomic_write_text
+from rigcal.io.atomic import atomic_write_text, mark_output
 from rigcal.io.manifest import check_sensor_name
 from rigcal.problem.result import CalibrationResult
 
@@ -136,4 +136,6 @@ def write_results(result: CalibrationResult, out_dir: str | os.PathLike[str]) ->
             )
         files.append((out / f"{name}.yaml", original_sensor_yaml_text(result, name)))
     files.append((out / LAUNCH_NAME, ros1_launch_text(result)))
-    return [atomic_write_text(path, text) for path, text in files]
+    written = [atomic_write_text(path, text) for path, text in files]
+    mark_output(out)
+    return written

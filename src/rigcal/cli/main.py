@@ -688,6 +688,10 @@ def run(argv: Sequence[str] | None = None) -> int:
     stream = sys.stderr if to_err else sys.stdout
     console = Console(stderr=to_err, highlight=False, width=None if stream.isatty() else 130)
     try:
+        if getattr(args, "out", None):  # refuse an unusable --out before any work
+            from rigcal.io.limits import path_stat
+
+            path_stat(args.out, "--out")
         if args.command == "calibrate":
             return _cmd_calibrate(args, console)
         if args.command == "detect":

@@ -118,7 +118,15 @@ def read_limited(path: str | os.PathLike[str], what: str = "file", kind: str = "
     limit = MAX_BYTES[kind]
     try:
         with open(p, "rb") as fh:
-            data = fh.read(limit + 1)
+            # read(n) allocates n bytes up front: ask for the file's size (+1 to see growth),
+            # never for the whole budget
+            size = os.fstat(fh.fileno()).st_size
+            data = fh.read(min(size, limit) + 1)
+            while len(data) <= limit:  # the file grew while it was read
+                more = fh.read(min(16 * MiB, limit + 1 - len(data)))
+                if not more:
+                    break
+                data += more
     except OSError as exc:
         raise InputError(f"{p}: cannot read {what}: {os_error_text(exc)}") from None
     if len(data) > limit:
@@ -146,7 +154,7 @@ def check_finite(values: Any, source: str, field: str, unit: str = "m",
         bad &= ~np.isnan(arr)
     if bad.any():
         idx = tuple(int(i) for i in np.argwhere(bad)[0])
-        value = arr[idx] if arr.ndim else float(arr)
+        value = float(arr[idx]) if arr.ndim else float(arr)
         where = f"[{', '.join(map(str, idx))}]" if idx else ""
         expected = f"a finite value within ±{limit:g} {unit}"
         raise InputError(f"{source}: {field}{where} is {value!r}, expected {expected}")
@@ -179,7 +187,7 @@ def check_points(points: Any, source: str, what: str = "point") -> np.ndarray:
         i, k = (int(v) for v in np.argwhere(bad.reshape(arr.shape[0], -1))[0])
         axis = "xyz"[k] if arr.ndim == 2 and arr.shape[1] <= 3 else str(k)
         raise InputError(
-            f"{source}: {what} {i} has {axis} = {arr.reshape(arr.shape[0], -1)[i, k]!r}, expected "
+            f"{source}: {what} {i} has {axis} = {float(arr.reshape(arr.shape[0], -1)[i, k])!r}, expected "
             f"a finite coordinate within ±{limit:g} m (NaN marks an invalid point)"
         )
     return arr

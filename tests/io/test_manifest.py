@@ -219,7 +219,8 @@ def make_dataset() -> Dataset:
     return Dataset(
         sensors=(
             SensorDetections("lidar_top", SensorKind.LIDAR, lidar, frame_id="velodyne"),
-            SensorDetections("cam", SensorKind.CAMERA, rng.normal(size=(K, 4, 3)) * 1e5),
+            # large but within the readers' limit (rigcal.io.limits.MAX_ABS["m"] = 1e5 m)
+            SensorDetections("cam", SensorKind.CAMERA, rng.normal(size=(K, 4, 3)) * 2e4),
             SensorDetections(
                 "front radar".replace(" ", "_"), SensorKind.RADAR, radar,
                 max_elevation_rad=0.1234567891234,

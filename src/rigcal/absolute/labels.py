@@ -54,6 +54,7 @@ from rigcal.geometry.fitting import (
 )
 from rigcal.geometry.so3 import so3_exp
 from rigcal.io._text import is_number, load_yaml, type_name
+from rigcal.io.limits import MAX_ABS
 
 __all__ = [
     "Circle3D",
@@ -161,8 +162,10 @@ def _point(value: Any, where: str) -> list[float]:
         )
     out = []
     for axis, v in zip("xyz", value):
-        if not is_number(v) or not math.isfinite(float(v)):
-            raise InputError(f"{where}: {axis} must be a finite number, got {v!r}")
+        if not is_number(v) or not abs(float(v)) <= MAX_ABS["m"]:
+            raise InputError(
+                f"{where}: {axis} must be a finite number, got {v!r} (within ±{MAX_ABS['m']:g} m)"
+            )
         out.append(float(v))
     return out
 
@@ -204,9 +207,12 @@ def parse_labels_csv(
     Errors name ``source``, the line and the column; ``required`` as in :func:`parse_labels_yaml`.
     """
     rows: dict[str, list[list[float]]] = {}
-    reader = csv.reader(io.StringIO(text))
-    for row in reader:
-        line = reader.line_num
+    reader = csv.reader(io.StringIO(text, newline=None))  # LF, CRLF or CR line ends
+    try:
+        table = [(reader.line_num, row) for row in reader]
+    except csv.Error as exc:
+        raise InputError(f"{source}: line {reader.line_num}: malformed CSV: {exc}") from None
+    for line, row in table:
         cells = [c.strip() for c in row]
         if not cells or all(c == "" for c in cells) or cells[0].startswith("#"):
             continue
@@ -227,9 +233,10 @@ def parse_labels_csv(
                     f"{source}: line {line}: column {axis} of label '{name}' "
                     f"is not a number: {cell!r}"
                 ) from None
-            if not math.isfinite(v):
+            if not abs(v) <= MAX_ABS["m"]:
                 raise InputError(
-                    f"{source}: line {line}: column {axis} of label '{name}' is {cell}"
+                    f"{source}: line {line}: column {axis} of label '{name}' is {cell}, "
+                    f"expected a finite number within ±{MAX_ABS['m']:g} m"
                 )
             xyz.append(v)
         rows.setdefault(name, []).append(xyz)

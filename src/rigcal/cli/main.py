@@ -799,6 +799,11 @@ def run(argv: Sequence[str] | None = None) -> int:
     try:
         from rich.console import Console
 
+        if getattr(args, "out", None):  # refuse an unusable --out before any work
+            from rigcal.io.limits import path_stat
+
+            path_stat(args.out, "--out")
+
         # with --json, stdout carries only the JSON; the human summary goes to stderr
         to_err = bool(getattr(args, "json", False))
         stream = sys.stderr if to_err else sys.stdout

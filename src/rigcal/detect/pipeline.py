@@ -15,6 +15,7 @@ import numpy as np
 
 from rigcal.dataset import Dataset, SensorKind
 from rigcal.detect.placements import (
+    NS,
     Placement,
     SensorSpec,
     dataset_from_placements,
@@ -24,6 +25,7 @@ from rigcal.detect.placements import (
 )
 from rigcal.detect.result import BoardDetection, DetectionFailure, DetectionResult
 from rigcal.errors import InputError
+from rigcal.io.limits import check_scalar
 from rigcal.io.rig_config import DetectionRig, SensorSetup
 from rigcal.recording import Frame, ImageFrame, StereoFrame
 
@@ -48,10 +50,16 @@ def _config(cls: type, overrides: Mapping[str, Any], where: str):
         raise InputError(f"{where}: unknown detector setting(s) {unknown} (allowed: {', '.join(allowed)})")
     converted = {}
     for k, v in overrides.items():
+        for j, x in enumerate(v if isinstance(v, list) else [v]):
+            if isinstance(x, float) or (isinstance(x, int) and not isinstance(x, bool)):
+                check_scalar(x, f"{where}: detector", k + (f"[{j}]" if isinstance(v, list) else ""),
+                             "1")
         converted[k] = tuple(v) if isinstance(v, list) else v
     try:
         return cls(**converted)
     except (TypeError, ValueError) as exc:
+        raise InputError(f"{where}: {exc}") from None
+    except InputError as exc:  # the config's own checks name the keys, not the file
         raise InputError(f"{where}: {exc}") from None
 
 
@@ -106,11 +114,17 @@ def _camera_model(setup: SensorSetup, rig: DetectionRig, recording: RecordingLik
         return read_intrinsics(setup.intrinsics)
     if recording is None or not hasattr(recording, "camera_info"):
         raise InputError(
-            f"{rig.source}: sensor '{setup.name}': camera_info_topic needs a recording that has it"
+            f"{rig.source}: sensor '{setup.name}': camera_info_topic needs a bag recording "
+            "(a folder recording has no CameraInfo); give intrinsics (a file) instead"
         )
     from rigcal.io.intrinsics import camera_from_info
 
-    return camera_from_info(recording.camera_info(setup.camera_info_topic), f"{setup.camera_info_topic}")
+    where = f"{rig.source}: sensor '{setup.name}': camera_info_topic {setup.camera_info_topic}"
+    try:
+        info = recording.camera_info(setup.camera_info_topic)
+    except InputError as exc:
+        raise InputError(f"{where}: {exc}") from None
+    return camera_from_info(info, f"{where} in {getattr(recording, 'path', 'the recording')}")
 
 
 @dataclass(frozen=True)
@@ -161,6 +175,40 @@ def _pair_stereo(name: str, pending: dict, frame: ImageFrame, tol_ns: int = 5_00
     return None
 
 
+_CLOUD = "sensor_msgs/msg/PointCloud2"
+_IMAGES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
+#: sensor input -> (bag message types, folder-recording contents) it can read
+_ACCEPTS = {
+    "cloud": ((_CLOUD,), ("points",)),
+    "stereo_cloud": ((_CLOUD,), ("points",)),
+    "mono": (_IMAGES, ("image",)),
+    "stereo_pair": (_IMAGES, ("image",)),
+    "radar": ((_CLOUD,), ("points", "radar_csv")),
+}
+
+
+def _check_topic_types(setup: SensorSetup, rig: DetectionRig, recording: RecordingLike,
+                       available: Mapping[str, str]) -> None:
+    """Refuse a topic whose message type (bag) or file kind (folder) the sensor cannot read,
+    before any frame is read."""
+    msg_types, contents = _ACCEPTS[setup.input]
+    topics = [setup.topic] + ([setup.right_topic] if setup.input == "stereo_pair" else [])
+    for topic in topics:
+        found = str(available.get(topic, ""))
+        if "/" in found:  # a bag: pkg/msg/Type
+            ok, expected = found in msg_types, msg_types
+        else:  # a folder recording: points, image, radar_csv (several joined by +)
+            ok, expected = all(part in contents for part in found.split("+")), contents
+        if not ok:
+            what = f"a {setup.kind.value}" + (f" with input {setup.input}"
+                                              if setup.kind is SensorKind.CAMERA else "")
+            raise InputError(
+                f"{rig.source}: sensor '{setup.name}': topic {topic} in "
+                f"{getattr(recording, 'path', 'the recording')} has type {found or '?'}; "
+                f"{what} expects {' or '.join(expected)}"
+            )
+
+
 def run_detection(
     recording: RecordingLike,
     rig: DetectionRig,
@@ -178,14 +226,19 @@ def run_detection(
                 f"sensor '{sensor}': topic {topic} is not in the recording "
                 f"(topics: {', '.join(sorted(available)) or 'none'})"
             )
+    for s in rig.sensors:
+        _check_topic_types(s, rig, recording, available)
     detectors = {s.name: build_detector(s, rig, recording) for s in rig.sensors}
     total = sum(recording.count(t) for t, _ in topics.values())
     results: dict[str, list[DetectionResult]] = {s.name: [] for s in rig.sensors}
     frames = Counter()
     pending: dict[str, dict] = {s.name: {"left": {}, "right": {}} for s in rig.sensors if s.input == "stereo_pair"}
     done = 0
+    span: list[int] = []  # first and last frame time seen
     for frame in recording.frames(topics):
         done += 1
+        span = [frame.t_ns, frame.t_ns] if not span else [min(span[0], frame.t_ns),
+                                                          max(span[1], frame.t_ns)]
         name = frame.sensor.split("#")[0]
         if frame.sensor.endswith(("#left", "#right")):
             frame = _pair_stereo(name, pending[name], frame)
@@ -206,6 +259,15 @@ def run_detection(
     if rig.windows_ns:
         placements = placements_from_windows(ok, rig.windows_ns, rig.stability, kinds)
         periods = {s: [] for s in ok}
+        for pl in placements:  # a window no sensor saw the board in would be an all-NaN board
+            if not pl.periods:
+                seen = (f"the recording spans {span[0] / NS:.3f} to {span[1] / NS:.3f} s"
+                        if span else "the recording has no frames of these sensors")
+                raise InputError(
+                    f"{rig.source}: placements.windows_s[{pl.index}] [{pl.start_ns / NS:g}, "
+                    f"{pl.end_ns / NS:g}] s: no sensor detected the board in this window ({seen}); "
+                    "expected a window in which the board stands still"
+                )
     else:
         periods = {s: stable_periods(s, d, rig.stability, radar=kinds[s].is_radar) for s, d in ok.items()}
         placements = match_placements(periods, min_sensors=rig.min_sensors)

@@ -37,13 +37,25 @@ class RadarDetectorConfig:
             raise ConfigError(
                 f"radar detector: select '{self.select}' is not one of {', '.join(SELECTION_RULES)}"
             )
-        for lo, hi, what in (
-            (self.rcs_min_dbsm, self.rcs_max_dbsm, "rcs window"),
-            (self.range_min_m, self.range_max_m, "range window"),
-            (self.azimuth_min_deg, self.azimuth_max_deg, "azimuth window"),
+        for lo, hi, lo_key, hi_key in (
+            (self.rcs_min_dbsm, self.rcs_max_dbsm, "rcs_min_dbsm", "rcs_max_dbsm"),
+            (self.range_min_m, self.range_max_m, "range_min_m", "range_max_m"),
+            (self.azimuth_min_deg, self.azimuth_max_deg, "azimuth_min_deg", "azimuth_max_deg"),
         ):
+            for value, key in ((lo, lo_key), (hi, hi_key)):
+                if value is None and key != "range_min_m":
+                    continue
+                if (isinstance(value, bool) or not isinstance(value, (int, float))
+                        or not math.isfinite(value)):
+                    raise ConfigError(
+                        f"radar detector: {key} is {value!r}, expected a finite number"
+                        + ("" if key == "range_min_m" else " or null (unbounded)")
+                    )
             if lo is not None and hi is not None and lo > hi:
-                raise ConfigError(f"radar detector: {what} [{lo}, {hi}] is empty")
+                raise ConfigError(
+                    f"radar detector: {lo_key.rsplit('_', 2)[0]} window {lo_key}/{hi_key} "
+                    f"[{lo}, {hi}] is empty; expected {lo_key} <= {hi_key}"
+                )
 
 
 def detect_board_radar(frame: RadarFrame, config: RadarDetectorConfig = RadarDetectorConfig()) -> DetectionResult:
@@ -106,5 +118,3 @@ def _span(v: np.ndarray) -> str:
         return "n/a"
     return f"{v.min():.3g}..{v.max():.3g}"
 
-
-_ = math

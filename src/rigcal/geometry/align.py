@@ -8,6 +8,17 @@ from rigcal.errors import GeometryError
 from rigcal.geometry.se3 import from_rt
 
 
+#: Largest coordinate magnitude aligned: far beyond any rig (readers already refuse more than
+#: rigcal.io.limits.MAX_ABS["m"]), far below what overflows the cross-covariance; LAPACK's SVD
+#: of a matrix holding inf/NaN or values near the float limit may never return.
+MAX_COORDINATE = 1.0e8
+
+
+def _usable(x: np.ndarray, axes: tuple[int, ...] | None = None) -> np.ndarray:
+    with np.errstate(invalid="ignore"):
+        return np.all(np.abs(x) <= MAX_COORDINATE, axis=axes)
+
+
 def _check_pairs(points_from: np.ndarray, points_to: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     a = np.asarray(points_from, dtype=float)
     b = np.asarray(points_to, dtype=float)
@@ -19,6 +30,8 @@ def _check_pairs(points_from: np.ndarray, points_to: np.ndarray) -> tuple[np.nda
         raise GeometryError(f"alignment needs at least 3 point pairs, got {a.shape[0]}")
     if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
         raise GeometryError("alignment got non-finite points")
+    if not (_usable(a) and _usable(b)):
+        raise GeometryError(f"alignment got coordinates beyond ±{MAX_COORDINATE:g} m")
     return a, b
 
 
@@ -74,7 +87,8 @@ def umeyama(
 def kabsch_batch(points_from: np.ndarray, points_to: np.ndarray) -> np.ndarray:
     """Rigid ``T_to_from`` for a batch of point-set pairs (B, N, 3) -> (B, 4, 4).
 
-    Degenerate sets (collinear points) give NaN transforms instead of raising, so a caller
+    Degenerate sets (collinear points) and sets with non-finite or absurd coordinates (beyond
+    :data:`MAX_COORDINATE`) give NaN transforms instead of raising, so a caller
     scoring many hypotheses (RANSAC) can drop them.
     """
     a = np.asarray(points_from, dtype=float)
@@ -83,6 +97,10 @@ def kabsch_batch(points_from: np.ndarray, points_to: np.ndarray) -> np.ndarray:
         raise GeometryError(
             f"kabsch_batch needs two (B, N>=3, 3) arrays of equal shape, got {a.shape} and {b.shape}"
         )
+    usable = _usable(a, (1, 2)) & _usable(b, (1, 2))  # NaN, inf, absurd sizes: NaN result
+    if not usable.all():
+        a = np.where(usable[:, None, None], a, 0.0)
+        b = np.where(usable[:, None, None], b, 0.0)
     ca = a.mean(axis=1)
     cb = b.mean(axis=1)
     H = np.einsum("bni,bnj->bij", a - ca[:, None], b - cb[:, None])
@@ -95,6 +113,6 @@ def kabsch_batch(points_from: np.ndarray, points_to: np.ndarray) -> np.ndarray:
     D[:, 2, 2] = d
     R = np.swapaxes(Vt, 1, 2) @ D @ np.swapaxes(U, 1, 2)
     T = from_rt(R, cb - np.einsum("bij,bj->bi", R, ca))
-    bad = S[:, 1] < 1e-12 * np.maximum(S[:, 0], 1e-300)
+    bad = (S[:, 1] < 1e-12 * np.maximum(S[:, 0], 1e-300)) | ~usable
     T[bad] = np.nan
     return T

@@ -90,6 +90,9 @@ def as_rigid(T: np.ndarray, what: str, atol: float = 1e-6) -> np.ndarray:
         raise InputError(f"{what}: expected a 4x4 matrix of numbers") from None
     if m.shape != (4, 4) or not np.all(np.isfinite(m)):
         raise InputError(f"{what}: expected a finite 4x4 transform, got shape {m.shape}")
+    from rigcal.io.limits import check_finite
+
+    check_finite(m, what, "entry", "m")  # a translation of 1e300 m is no rig
     R = m[:3, :3]
     if not np.allclose(R.T @ R, np.eye(3), atol=atol) or np.linalg.det(R) < 0:
         raise InputError(f"{what}: the 3x3 block is not a proper rotation")

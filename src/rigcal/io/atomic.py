@@ -19,6 +19,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from rigcal.errors import InputError
+from rigcal.io.limits import path_stat
 
 
 def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> Path:
@@ -32,12 +33,10 @@ def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> Path:
         raise InputError(
             f"{target.parent}: cannot create output directory: {exc.strerror or exc}"
         ) from exc
-    if target.is_dir():
+    st = path_stat(target, "output file")
+    if st is not None and stat.S_ISDIR(st.st_mode):
         raise InputError(f"{target}: is a directory, cannot write a file there")
-    try:
-        mode = target.stat().st_mode & 0o7777 if target.exists() else None
-    except OSError:
-        mode = None
+    mode = st.st_mode & 0o7777 if st is not None else None
     tmp = target.parent / f".{target.name}.{secrets.token_hex(6)}.tmp"
     try:
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0), 0o666)

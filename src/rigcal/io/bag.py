@@ -34,6 +34,7 @@ import logging
 import os
 import secrets
 import shutil
+import stat
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
@@ -44,6 +45,7 @@ import numpy as np
 from rigcal.dataset import SensorKind
 from rigcal.errors import InputError
 from rigcal.io.folder import decode_image_bytes
+from rigcal.io.limits import os_error_text
 from rigcal.io.pointcloud import radar_frame_from_cloud
 from rigcal.io.pointcloud2 import (
     decode_pointcloud2,
@@ -424,10 +426,16 @@ def open_recording(path: str | os.PathLike[str]) -> Recording:
     from rosbags.highlevel import AnyReader
 
     p = Path(path)
-    if p.name == "metadata.yaml" and p.is_file():
-        p = p.parent
-    if not p.exists():
-        raise InputError(f"{p}: bag not found")
+    try:
+        if p.name == "metadata.yaml" and p.is_file():
+            p = p.parent
+        st = p.stat()
+    except FileNotFoundError:
+        raise InputError(f"{p}: bag not found") from None
+    except OSError as exc:
+        raise InputError(f"{p}: cannot open bag: {os_error_text(exc)}") from None
+    if not (stat.S_ISREG(st.st_mode) or stat.S_ISDIR(st.st_mode)):
+        raise InputError(f"{p}: is not a regular file or a folder, expected a ROS1 or ROS2 bag")
     if p.is_file() and p.suffix not in (".bag", ".db3", ".mcap"):
         try:
             with p.open("rb") as fh:
@@ -437,7 +445,14 @@ def open_recording(path: str | os.PathLike[str]) -> Recording:
         hint = ("it looks like a ROS1 bag; name it *.bag" if magic.startswith(b"#ROSBAG")
                 else "expected a .bag file or a ROS2 bag directory with metadata.yaml")
         raise InputError(f"{p} is not a ROS1 or ROS2 bag: {hint}")
-    if p.is_dir() and not (p / "metadata.yaml").exists():
+    if p.is_dir() and not (p / "metadata.yaml").is_file():
+        storage = sorted(c.name for c in p.iterdir() if c.suffix.lower() in (".db3", ".mcap"))
+        if storage:
+            raise InputError(
+                f"{p}: looks like a ROS 2 bag (has {', '.join(storage[:3])}) but metadata.yaml "
+                "is missing; expected a ROS 2 bag folder with metadata.yaml (`ros2 bag reindex` "
+                "rebuilds it)"
+            )
         raise InputError(f"{p} is not a ROS1 or ROS2 bag: directory has no metadata.yaml")
     try:
         reader = AnyReader([p], default_typestore=_default_typestore(p))

@@ -54,6 +54,7 @@ import numpy as np
 import yaml
 
 from rigcal.errors import InputError
+from rigcal.io.limits import check_finite
 from rigcal.io._text import is_number, load_yaml, read_text, type_name
 from rigcal.io.intrinsics import parse_camera_info_yaml_text, parse_intrinsics_ini_text
 from rigcal.sensors.camera.base import CameraModel
@@ -141,6 +142,7 @@ def _transform(value: Any, source: str, where: str) -> np.ndarray:
         [[_number(v, source, f"{where}[{i}][{j}]") for j, v in enumerate(row)]
          for i, row in enumerate(value)]
     )
+    check_finite(T, f"{source}: {where}", "entry", "m")
     if not np.allclose(T[3], [0.0, 0.0, 0.0, 1.0], atol=1e-12):
         raise InputError(f"{source}: {where}: last row must be [0, 0, 0, 1], got {T[3].tolist()}")
     R = T[:3, :3]

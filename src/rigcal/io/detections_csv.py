@@ -8,7 +8,8 @@ Comma-separated floats, one row per coordinate, one column per detected point:
 * ``radar3d``: 3 rows (x, y, z) x K columns.
 
 ``nan`` (any case) marks a missed detection. Blank lines are skipped and one trailing comma per
-row is tolerated. Parsed points use the layouts of :mod:`rigcal.dataset`: (K, 4, 3), (K, 2) or
+row is tolerated; lines may end in LF, CRLF or CR. Values beyond ±1e5 m
+(:data:`rigcal.io.limits.MAX_ABS`) and infinities are refused. Parsed points use the layouts of :mod:`rigcal.dataset`: (K, 4, 3), (K, 2) or
 (K, 3) in metres, in the sensor's frame.
 """
 
@@ -23,6 +24,7 @@ import numpy as np
 from rigcal.dataset import SensorKind
 from rigcal.errors import InputError
 from rigcal.io._text import read_text
+from rigcal.io.limits import MAX_ABS
 
 _POINTS_PER_BOARD = 4
 
@@ -59,9 +61,10 @@ def _parse_cell(cell: str, source: str, line: int, column: int) -> float:
         raise InputError(
             f"{source}: line {line}, column {column}: expected a number or nan, got {text!r}"
         ) from None
-    if math.isinf(value):
+    if math.isinf(value) or abs(value) > MAX_ABS["m"]:
         raise InputError(
-            f"{source}: line {line}, column {column}: expected a finite number or nan, got {text!r}"
+            f"{source}: line {line}, column {column}: expected a finite number or nan, got "
+            f"{text!r} (coordinates must lie within ±{MAX_ABS['m']:g} m)"
         )
     return value
 

@@ -31,6 +31,7 @@ import logging
 import math
 import os
 import re
+import stat
 from pathlib import Path
 from types import TracebackType
 from typing import Any, Iterable, Iterator, Mapping, Sequence
@@ -39,7 +40,7 @@ import numpy as np
 
 from rigcal.dataset import SensorKind
 from rigcal.errors import InputError
-from rigcal.io.limits import read_limited
+from rigcal.io.limits import MAX_ABS, os_error_text, path_stat, read_limited
 from rigcal.io._text import read_text
 from rigcal.io.atomic import atomic_write_bytes, atomic_write_text
 from rigcal.io.pointcloud import (
@@ -114,8 +115,12 @@ def parse_radar_csv(text: str, source: str, sensor: str = "", t_ns: int = 0, dim
     """A radar detection list from CSV text: a header row naming the columns (``x``, ``y``,
     ``z`` if ``dims`` is 3, and the RCS column ``rcs_field`` or one of rcs, RCS, rcs0), then one
     detection a row. Other columns are ignored; ``nan`` is allowed; blank lines are skipped."""
-    rows = [(k, row) for k, row in enumerate(csv.reader(io.StringIO(text)), start=1)
-            if any(cell.strip() for cell in row)]
+    # universal newlines: LF, CRLF and old-Mac CR line ends all end a row
+    reader = csv.reader(io.StringIO(text, newline=None))
+    try:
+        rows = [(reader.line_num, row) for row in reader if any(cell.strip() for cell in row)]
+    except csv.Error as exc:
+        raise InputError(f"{source}: line {reader.line_num}: malformed CSV: {exc}") from None
     if not rows:
         raise InputError(f"{source}: empty radar CSV, expected a header row (x, y, ..., rcs)")
     header_line, header = rows[0]
@@ -148,6 +153,12 @@ def parse_radar_csv(text: str, source: str, sensor: str = "", t_ns: int = 0, dim
                     f"{source}: line {line}, column '{names[col]}': expected a number, got "
                     f"{cell!r}"
                 ) from None
+            unit = "1" if c == dims else "m"  # rcs [dBsm] or a coordinate [m]
+            if not (abs(values[r, c]) <= MAX_ABS[unit] or math.isnan(values[r, c])):
+                raise InputError(
+                    f"{source}: line {line}, column '{names[col]}': expected a finite number "
+                    f"within ±{MAX_ABS[unit]:g}{' m' if unit == 'm' else ''} or nan, got {cell!r}"
+                )
     return RadarFrame(sensor=sensor, t_ns=t_ns, points=values[:, :dims], rcs_dbsm=values[:, dims],
                       frame_id=frame_id)
 
@@ -232,7 +243,9 @@ class FolderRecording:
         if self._closed:
             raise InputError(f"{self.path}: recording is closed")
         folder = self.path / topic
-        if Path(topic).is_absolute() or ".." in Path(topic).parts or not folder.is_dir():
+        st = None if Path(topic).is_absolute() or ".." in Path(topic).parts else path_stat(
+            folder, "sensor folder")
+        if st is None or not stat.S_ISDIR(st.st_mode):
             raise InputError(
                 f"{self.path}: folder '{topic}' not in recording; folders: {sorted(self.topics())}"
             )
@@ -311,12 +324,20 @@ class FolderRecording:
         return cloud
 
 
+def _stat(p: Path, what: str) -> os.stat_result | None:
+    return path_stat(p, what)
+
+
+_ROS2_STORAGE = (".db3", ".mcap")
+
+
 def open_folder(path: str | os.PathLike[str]) -> FolderRecording:
     """Open a folder recording (see the module docstring)."""
     root = Path(path)
-    if not root.exists():
+    st = _stat(root, "recording folder")
+    if st is None:
         raise InputError(f"{root}: recording folder not found")
-    if not root.is_dir():
+    if not stat.S_ISDIR(st.st_mode):
         raise InputError(f"{root}: not a folder (a folder recording has one subfolder per sensor)")
     return FolderRecording(root)
 
@@ -324,13 +345,33 @@ def open_folder(path: str | os.PathLike[str]) -> FolderRecording:
 def open_any(path: str | os.PathLike[str]) -> Any:
     """A bag (``.bag``/``.db3``/``.mcap`` file, or a directory with ``metadata.yaml``) via
     :func:`rigcal.io.bag.open_recording`, else a folder recording. Both offer ``topics()``,
-    ``count(topic)`` and ``frames(sensor_topics, start_ns, end_ns)``."""
-    p = Path(path)
-    if p.is_file() or (p / "metadata.yaml").exists():
-        from rigcal.io.bag import open_recording
+    ``count(topic)`` and ``frames(sensor_topics, start_ns, end_ns)``.
 
-        return open_recording(p)
-    return open_folder(p)
+    A directory holding ``.db3``/``.mcap`` files but no ``metadata.yaml`` is refused as a ROS 2
+    bag with its metadata missing (not read as an empty folder recording)."""
+    p = Path(path)
+    st = _stat(p, "recording")
+    if st is None:
+        raise InputError(f"{p}: recording folder not found (expected a .bag file, a ROS 2 bag "
+                         "folder or a folder with one subfolder per sensor)")
+    if stat.S_ISDIR(st.st_mode):
+        if _stat(p / "metadata.yaml", "recording") is None:
+            try:
+                storage = sorted(c.name for c in p.iterdir()
+                                 if c.suffix.lower() in _ROS2_STORAGE and c.is_file())
+            except OSError as exc:
+                raise InputError(f"{p}: cannot list folder: {os_error_text(exc)}") from None
+            if storage:
+                shown = ", ".join(storage[:3]) + (", ..." if len(storage) > 3 else "")
+                raise InputError(
+                    f"{p}: looks like a ROS 2 bag (has {shown}) but metadata.yaml is missing; "
+                    "expected a ROS 2 bag folder with metadata.yaml (`ros2 bag reindex` "
+                    "rebuilds it), a .bag file or a folder with one subfolder per sensor"
+                )
+            return FolderRecording(p)
+    from rigcal.io.bag import open_recording
+
+    return open_recording(p)
 
 
 def write_folder_recording(

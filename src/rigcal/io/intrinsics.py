@@ -40,6 +40,7 @@ import numpy as np
 
 from rigcal.errors import InputError
 from rigcal.io._text import is_finite_number, load_yaml, read_text, type_name
+from rigcal.sensors.camera.base import CameraModel
 from rigcal.sensors.camera.radtan import RadtanCamera
 
 _DIST_NAMES = "k1 k2 p1 p2 [k3]"
@@ -80,7 +81,78 @@ def _camera(
             f"{source}: {where_K}: expected [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] (no skew), got "
             f"{K.tolist()}"
         )
-    return RadtanCamera.from_opencv(width, height, K, dist)
+    try:
+        return RadtanCamera.from_opencv(width, height, K, dist)
+    except InputError as exc:
+        raise InputError(f"{source}: {exc}") from None
+
+
+# ---------------------------------------------------------------------------- CameraInfo message
+_INFO_MODELS = {  # distortion_model -> (rigcal model, D sizes accepted)
+    "plumb_bob": ("radtan", (0, 4, 5)),
+    "rational_polynomial": ("radtan", (8, 12, 14)),
+    "equidistant": ("kannala_brandt", (4,)),
+}
+
+
+def camera_from_info(info: Any, source: str) -> CameraModel:
+    """The camera model of a ``sensor_msgs/CameraInfo`` (:class:`rigcal.io.bag.CameraInfo`):
+    ``K`` (fx, fy, cx, cy; no skew), ``D`` and ``distortion_model``, ``width``/``height``.
+
+    ``plumb_bob`` (k1 k2 p1 p2 [k3]; an empty D is no distortion) -> radtan; ``equidistant``
+    (k1 k2 k3 k4) -> kannala_brandt; ``rational_polynomial`` (k1 k2 p1 p2 k3 k4 k5 k6 [...])
+    -> radtan when k4.. are all 0 (rigcal has no rational model; other values are refused).
+    An uncalibrated camera (K all zeros) is refused. Errors name ``source``."""
+    from rigcal.io.limits import check_finite
+    from rigcal.sensors.camera.registry import camera_from_params
+
+    model = str(getattr(info, "distortion_model", "")).strip().lower() or "plumb_bob"
+    if model not in _INFO_MODELS:
+        raise InputError(
+            f"{source}: CameraInfo distortion_model '{model}' is not supported (expected "
+            f"{', '.join(_INFO_MODELS)})"
+        )
+    name, sizes = _INFO_MODELS[model]
+    K = check_finite(np.asarray(info.K, dtype=float).reshape(-1), source, "CameraInfo K", "px")
+    D = check_finite(np.asarray(info.D, dtype=float).reshape(-1), source, "CameraInfo D", "px")
+    if K.size != 9:
+        raise InputError(f"{source}: CameraInfo K has {K.size} values, expected 9 (3 x 3)")
+    K = K.reshape(3, 3)
+    if not (K[0, 0] > 0 and K[1, 1] > 0):
+        raise InputError(
+            f"{source}: CameraInfo K has fx = {K[0, 0]:g}, fy = {K[1, 1]:g}; expected a "
+            "calibrated camera (fx, fy > 0)"
+        )
+    if K[0, 1] != 0.0 or K[1, 0] != 0.0 or not np.array_equal(K[2], [0.0, 0.0, 1.0]):
+        raise InputError(
+            f"{source}: CameraInfo K is {K.tolist()}, expected [[fx, 0, cx], [0, fy, cy], "
+            "[0, 0, 1]] (no skew)"
+        )
+    if D.size not in sizes:
+        raise InputError(
+            f"{source}: CameraInfo D has {D.size} coefficients, expected "
+            f"{' or '.join(map(str, sizes))} for distortion_model {model}"
+        )
+    if model == "rational_polynomial":
+        if np.any(D[5:] != 0.0):
+            raise InputError(
+                f"{source}: CameraInfo distortion_model rational_polynomial with k4..k6 = "
+                f"{D[5:8].tolist()} is not supported (rigcal models plumb_bob, equidistant; "
+                "k4.. must be 0)"
+            )
+        D = D[:5]
+    if name == "radtan":
+        D = np.concatenate([D, np.zeros(5 - D.size)])
+    width, height = getattr(info, "width", 0), getattr(info, "height", 0)
+    for value, what in ((width, "width"), (height, "height")):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value <= 0:
+            raise InputError(f"{source}: CameraInfo {what} is {value!r}, expected a positive "
+                             "integer [px]")
+    params = [K[0, 0], K[1, 1], K[0, 2], K[1, 2], *D]
+    try:
+        return camera_from_params(name, int(width), int(height), params)
+    except InputError as exc:
+        raise InputError(f"{source}: CameraInfo: {exc}") from None
 
 
 # ---------------------------------------------------------------------------- INI

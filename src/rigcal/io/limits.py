@@ -76,6 +76,19 @@ def os_error_text(exc: OSError) -> str:
     return exc.strerror or str(exc)
 
 
+def path_stat(path: str | os.PathLike[str], what: str = "file") -> os.stat_result | None:
+    """``os.stat`` of ``path``, or None if nothing is there. Any other failure (a name longer than
+    the file system allows - which ``Path.exists()`` raises on Python < 3.12 -, a permission
+    problem, a loop of links) is an InputError naming the path."""
+    try:
+        return os.stat(path)
+    except (FileNotFoundError, NotADirectoryError):
+        return None
+    except (OSError, ValueError) as exc:  # ValueError: an embedded NUL byte
+        reason = os_error_text(exc) if isinstance(exc, OSError) else "invalid path"
+        raise InputError(f"{Path(path)}: cannot use {what}: {reason}") from None
+
+
 def regular_file(path: str | os.PathLike[str], what: str = "file", kind: str = "text") -> Path:
     """``path`` as a Path after checking it names an existing regular file within the size budget
     of ``kind`` (a key of :data:`MAX_BYTES`). FIFOs, devices, sockets and directories are refused
@@ -105,7 +118,15 @@ def read_limited(path: str | os.PathLike[str], what: str = "file", kind: str = "
     limit = MAX_BYTES[kind]
     try:
         with open(p, "rb") as fh:
-            data = fh.read(limit + 1)
+            # read(n) allocates n bytes up front: ask for the file's size (+1 to see growth),
+            # never for the whole budget
+            size = os.fstat(fh.fileno()).st_size
+            data = fh.read(min(size, limit) + 1)
+            while len(data) <= limit:  # the file grew while it was read
+                more = fh.read(min(16 * MiB, limit + 1 - len(data)))
+                if not more:
+                    break
+                data += more
     except OSError as exc:
         raise InputError(f"{p}: cannot read {what}: {os_error_text(exc)}") from None
     if len(data) > limit:
@@ -151,3 +172,22 @@ def check_scalar(value: Any, source: str, field: str, unit: str = "m") -> float:
             f"{source}: {field} is {value!r}, expected a finite value within ±{MAX_ABS[unit]:g} {unit}"
         )
     return x
+
+
+def check_points(points: Any, source: str, what: str = "point") -> np.ndarray:
+    """Point coordinates (N, k) [m] as a float array after checking each is NaN or finite within
+    :data:`MAX_ABS` ``["m"]``. NaN is allowed: it marks an invalid point (organised clouds, a
+    PointCloud2 with ``is_dense`` false); infinities and absurd magnitudes are refused, naming
+    the first bad point and axis."""
+    arr = np.asarray(points, dtype=float)
+    limit = MAX_ABS["m"]
+    with np.errstate(invalid="ignore"):
+        bad = ~(np.abs(arr) <= limit) & ~np.isnan(arr)
+    if bad.any():
+        i, k = (int(v) for v in np.argwhere(bad.reshape(arr.shape[0], -1))[0])
+        axis = "xyz"[k] if arr.ndim == 2 and arr.shape[1] <= 3 else str(k)
+        raise InputError(
+            f"{source}: {what} {i} has {axis} = {float(arr.reshape(arr.shape[0], -1)[i, k])!r}, expected "
+            f"a finite coordinate within ±{limit:g} m (NaN marks an invalid point)"
+        )
+    return arr

@@ -36,6 +36,7 @@ from __future__ import annotations
 import math
 import os
 import re
+import stat
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
@@ -56,6 +57,7 @@ from rigcal.io.accumulator import accumulator_points_for_kind, parse_accumulator
 from rigcal.io.atomic import atomic_write_text, mark_output
 from rigcal.io.detections_csv import format_detections_csv, parse_detections_csv
 from rigcal.io.ignore import parse_ignore_yaml
+from rigcal.io.limits import path_stat
 
 MANIFEST_NAME = "rig.yaml"
 
@@ -306,7 +308,8 @@ def parse_manifest(text: str, source: str, base_dir: str | os.PathLike[str]) -> 
 
 def _manifest_path(path: str | os.PathLike[str]) -> Path:
     p = Path(path)
-    return p / MANIFEST_NAME if p.is_dir() else p
+    st = path_stat(p, "manifest")
+    return p / MANIFEST_NAME if st is not None and stat.S_ISDIR(st.st_mode) else p
 
 
 def load_manifest_with_ignored(

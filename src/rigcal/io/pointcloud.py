@@ -43,7 +43,7 @@ from typing import Iterable, Sequence
 import numpy as np
 
 from rigcal.errors import InputError
-from rigcal.io.limits import read_limited
+from rigcal.io.limits import MAX_ELEMENTS, check_count, check_finite, check_points, read_limited
 from rigcal.io.atomic import atomic_write_bytes
 from rigcal.recording import PointCloudFrame, RadarFrame
 
@@ -105,6 +105,8 @@ def lzf_decompress(data: bytes | bytearray | memoryview, expected_size: int | No
                 )
             out += src[i:i + run]
             i += run
+            if expected_size is not None and len(out) > expected_size:
+                break
             continue
         length = ctrl >> 5
         if length == 7:
@@ -123,14 +125,17 @@ def lzf_decompress(data: bytes | bytearray | memoryview, expected_size: int | No
                 f"{source}: corrupt LZF data: back reference {distance} bytes before output "
                 f"byte {len(out)}"
             )
+        if expected_size is not None and len(out) + length > expected_size:
+            break  # reported below: more data than announced
         if distance >= length:
             out += out[start:start + length]
         else:  # overlapping copy repeats the last `distance` bytes
             pattern = bytes(out[start:])
             out += (pattern * (length // distance + 1))[:length]
-    if expected_size is not None and len(out) != expected_size:
+    if expected_size is not None and (len(out) != expected_size or i < n):
+        got = f"{len(out)} bytes" if i >= n else f"more than {expected_size} bytes"
         raise InputError(
-            f"{source}: LZF data decompress to {len(out)} bytes, expected {expected_size}"
+            f"{source}: LZF data decompress to {got}, expected {expected_size}"
         )
     return bytes(out)
 
@@ -219,7 +224,10 @@ def _frame_from_columns(columns: Sequence[tuple[str, np.ndarray]], source: str, 
         raise InputError(
             f"{source}: point cloud has fields {list(named)}, expected x, y, z"
         )
-    points = np.stack([named[a].astype(np.float64) for a in _XYZ], axis=1)
+    for a in _XYZ:
+        if named[a].dtype.kind not in "iuf":
+            raise InputError(f"{source}: field '{a}' has dtype {named[a].dtype}, expected numbers")
+    points = check_points(np.stack([named[a].astype(np.float64) for a in _XYZ], axis=1), source)
     fields = {}
     for name, col in named.items():
         if name in _XYZ:
@@ -467,7 +475,14 @@ def _ascii_column(block: np.ndarray, dt: np.dtype, where: str) -> np.ndarray:
     """Text tokens -> values of ``dt``; a bad token or an integer out of range is named."""
     try:
         if dt.kind == "f":
-            return block.astype(np.float64).astype(dt)
+            wide_f = block.astype(np.float64)
+            limit = np.finfo(dt).max
+            with np.errstate(invalid="ignore"):
+                too_big = np.isfinite(wide_f) & (np.abs(wide_f) > limit)
+            if too_big.any():  # would overflow (with a RuntimeWarning) into inf
+                raise InputError(f"{where}: value {str(block[too_big][0])!r} out of range for "
+                                 f"F{dt.itemsize * 8}")
+            return wide_f.astype(dt)
         wide = block.astype(np.uint64 if dt == np.dtype("<u8") else np.int64)
     except (ValueError, OverflowError):
         wide = None
@@ -702,17 +717,54 @@ def write_ply(path: str | os.PathLike[str], frame: PointCloudFrame,
 # NPY
 
 
+def _npy_array(data: bytes, source: str) -> np.ndarray:
+    """The array of ``.npy`` bytes; the header is read and checked (shape within
+    :data:`~rigcal.io.limits.MAX_ELEMENTS`, data present in the file) before anything is
+    allocated, so a header declaring a huge shape costs nothing."""
+    if data.startswith(b"PK\x03\x04"):
+        raise InputError(f"{source}: expected one array (.npy), got an archive (.npz)")
+    fmt = np.lib.format
+    buf = io.BytesIO(data)
+    try:
+        major, _ = fmt.read_magic(buf)
+        if major == 1:
+            shape, fortran, dtype = fmt.read_array_header_1_0(buf)
+        elif major in (2, 3):
+            shape, fortran, dtype = fmt.read_array_header_2_0(buf)
+        else:
+            raise ValueError(f"unsupported .npy format version {major}")
+    except Exception as exc:  # noqa: BLE001 - numpy's header parser raises many kinds
+        detail = " ".join(str(exc).split())[:200] or type(exc).__name__
+        raise InputError(f"{source}: not a valid .npy array: {detail}") from None
+    offset = buf.tell()
+    if dtype.hasobject:
+        raise InputError(f"{source}: not a valid .npy array: it holds pickled Python objects "
+                         f"(dtype {dtype}); expected numbers")
+    if dtype.itemsize == 0:
+        raise InputError(f"{source}: not a valid .npy array: dtype {dtype} has no data; "
+                         "expected numbers")
+    count = math.prod(shape)
+    check_count(count, source, f".npy element count of shape {tuple(shape)}", MAX_ELEMENTS)
+    need = count * dtype.itemsize
+    if len(data) - offset < need:
+        raise InputError(
+            f"{source}: truncated .npy data: shape {tuple(shape)} of {dtype} needs {need} bytes, "
+            f"got {len(data) - offset}"
+        )
+    try:
+        flat = np.frombuffer(data, dtype=dtype, count=count, offset=offset)
+        if fortran:
+            return flat.reshape(shape[::-1]).transpose()
+        return flat.reshape(shape)
+    except ValueError as exc:
+        raise InputError(f"{source}: not a valid .npy array: {exc}") from None
+
+
 def parse_npy_bytes(data: bytes, source: str, sensor: str = "", t_ns: int = 0,
                     frame_id: str = "") -> PointCloudFrame:
     """Parse a ``.npy`` file: (N, 3) or (H, W, 3) numbers, or a structured (N,) or (H, W) array
     with fields x, y, z (other fields become frame fields). Pickled objects are refused."""
-    try:
-        arr = np.load(io.BytesIO(bytes(data)), allow_pickle=False)
-    except (ValueError, OSError, EOFError) as exc:
-        raise InputError(f"{source}: not a valid .npy array: {' '.join(str(exc).split())}"
-                         ) from None
-    if not isinstance(arr, np.ndarray):
-        raise InputError(f"{source}: expected one array (.npy), got an archive")
+    arr = _npy_array(bytes(data), source)
     organized = None
     if arr.dtype.names:
         if arr.ndim not in (1, 2):
@@ -739,7 +791,8 @@ def parse_npy_bytes(data: bytes, source: str, sensor: str = "", t_ns: int = 0,
             f"{source}: expected an (N, 3) x, y, z array or a structured array with fields "
             f"x, y, z, got shape {arr.shape}"
         )
-    return PointCloudFrame(sensor=sensor, t_ns=t_ns, points_xyz=arr.astype(np.float64),
+    return PointCloudFrame(sensor=sensor, t_ns=t_ns,
+                           points_xyz=check_points(arr.astype(np.float64), source),
                            organized_shape=organized, frame_id=frame_id)
 
 
@@ -801,6 +854,8 @@ def radar_frame_from_cloud(cloud: PointCloudFrame, dims: int = 2,
             f"{['x', 'y', 'z', *cloud.fields]}, expected an RCS field "
             f"({' or '.join(candidates)})"
         )
+    rcs = check_finite(np.asarray(cloud.fields[name], dtype=np.float64),
+                       source or cloud.sensor, f"RCS field '{name}' of point", "1", allow_nan=True)
     return RadarFrame(sensor=cloud.sensor, t_ns=cloud.t_ns, points=cloud.points_xyz[:, :dims],
-                      rcs_dbsm=np.asarray(cloud.fields[name], dtype=np.float64),
+                      rcs_dbsm=rcs,
                       frame_id=cloud.frame_id)

@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from rigcal.errors import InputError
+from rigcal.io.limits import check_points
 from rigcal.recording import PointCloudFrame
 
 __all__ = [
@@ -150,7 +151,8 @@ def decode_pointcloud2(msg: Any, sensor: str = "", t_ns: int | None = None,
                 if key in names or key in columns:
                     raise InputError(f"{source}: field '{key}' appears twice")
                 columns[key] = values[:, k]
-    points = np.stack([columns.pop(a).astype(np.float64) for a in _XYZ], axis=1)
+    points = check_points(np.stack([columns.pop(a).astype(np.float64) for a in _XYZ], axis=1),
+                          source)
     organized = (height, width) if height > 1 else None
     if remove_nan:
         keep = np.isfinite(points).all(axis=1)

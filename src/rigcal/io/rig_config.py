@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import math
 import os
+import stat
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from types import MappingProxyType
@@ -48,6 +49,7 @@ from rigcal.dataset import DEFAULT_MAX_ELEVATION_DEG, BoardGeometry, SensorKind
 from rigcal.detect.placements import NS, StabilityRule
 from rigcal.errors import InputError
 from rigcal.io._text import is_number, load_yaml, read_text, type_name
+from rigcal.io.limits import check_scalar, path_stat
 from rigcal.io.manifest import _check_keys, _parse_board, _string, check_sensor_name
 
 INPUTS = {
@@ -127,8 +129,9 @@ def _parse_sensor(i: int, raw: Any, source: str, base_dir: Path) -> SensorSetup:
             raise InputError(f"{where}.stereo: input stereo_pair needs {{{', '.join(need)}}} of the rectified pair")
         _check_keys(stereo, need, f"{where}.stereo")
         for k, v in stereo.items():
-            if not is_number(v) or (k in ("fx", "fy", "baseline_m") and v <= 0):
+            if not is_number(v) or (k in ("fx", "fy", "baseline_m") and not v > 0):
                 raise InputError(f"{where}.stereo.{k}: expected a positive number, got {v!r}")
+            check_scalar(v, f"{where}.stereo", k, "m" if k == "baseline_m" else "px")
     elif right is not None:
         raise InputError(f"{where}.right_topic: only input stereo_pair has a right topic")
     intrinsics = raw.get("intrinsics")
@@ -139,7 +142,8 @@ def _parse_sensor(i: int, raw: Any, source: str, base_dir: Path) -> SensorSetup:
     if intrinsics is not None:
         p = Path(_string(intrinsics, f"{where}.intrinsics"))
         intrinsics = p if p.is_absolute() else base_dir / p
-        if not intrinsics.is_file():
+        st = path_stat(intrinsics, "camera intrinsics file")
+        if st is None or not stat.S_ISREG(st.st_mode):
             raise InputError(f"{where}.intrinsics: file not found: {intrinsics}")
     if cam_info is not None:
         cam_info = _string(cam_info, f"{where}.camera_info_topic")
@@ -163,6 +167,29 @@ def _parse_sensor(i: int, raw: Any, source: str, base_dir: Path) -> SensorSetup:
         max_elevation_rad=math.radians(float(elev)),
         detector=det,
     )
+
+
+def _windows_ns(windows: Any, where: str) -> tuple[tuple[int, int], ...]:
+    """``windows_s`` ([[start, end], ...] in seconds of the recording's clock) in nanoseconds;
+    each bound finite and within :data:`~rigcal.io.limits.MAX_ABS` ``["s"]``, end after start."""
+    if not isinstance(windows, list) or not windows:
+        raise InputError(f"{where}: expected a non-empty list of [start, end] in seconds, got "
+                         f"{type_name(windows) if not isinstance(windows, list) else 'an empty list'}")
+    out = []
+    for k, w in enumerate(windows):
+        if not (isinstance(w, list) and len(w) == 2):
+            raise InputError(f"{where}[{k}]: expected [start, end] in seconds, got {w!r}")
+        for j, x in enumerate(w):
+            if not is_number(x):
+                raise InputError(f"{where}[{k}][{j}]: expected a number of seconds, got {x!r}")
+            check_scalar(x, f"{where}[{k}][{j}]", "time", "s")
+        a, b = (float(x) for x in w)
+        if not b > a:
+            raise InputError(
+                f"{where}[{k}]: end {b:g} s is not after start {a:g} s; expected [start, end]"
+            )
+        out.append((int(round(a * NS)), int(round(b * NS))))
+    return tuple(out)
 
 
 def parse_rig_config(text: str, source: str, base_dir: str | os.PathLike[str]) -> DetectionRig:
@@ -189,17 +216,15 @@ def parse_rig_config(text: str, source: str, base_dir: str | os.PathLike[str]) -
         raise InputError(f"{source}: placements.stability: expected a mapping")
     _check_keys(st, _STABILITY_KEYS, f"{source}: placements.stability")
     for k, v in st.items():
-        if not is_number(v) or v < 0:
+        if not is_number(v) or not v >= 0:
             raise InputError(f"{source}: placements.stability.{k}: expected a number >= 0, got {v!r}")
+        unit = "m" if k.endswith("_m") else "s" if k.endswith("_s") else "1"
+        check_scalar(v, f"{source}: placements.stability", k, unit)
     stability = StabilityRule(**{k: (int(v) if k == "min_frames" else float(v)) for k, v in st.items()})
     windows = pl.get("windows_s")
     windows_ns = None
     if windows is not None:
-        if not isinstance(windows, list) or not all(
-            isinstance(w, list) and len(w) == 2 and all(is_number(x) for x in w) for w in windows
-        ):
-            raise InputError(f"{source}: placements.windows_s: expected a list of [start, end] in seconds")
-        windows_ns = tuple((int(round(a * NS)), int(round(b * NS))) for a, b in windows)
+        windows_ns = _windows_ns(windows, f"{source}: placements.windows_s")
     min_sensors = pl.get("min_sensors", 1)
     if not isinstance(min_sensors, int) or min_sensors < 1:
         raise InputError(f"{source}: placements.min_sensors: expected an integer >= 1")

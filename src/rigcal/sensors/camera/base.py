@@ -95,6 +95,22 @@ class CameraModel(ABC):
         if not np.all(np.isfinite(p)):
             bad = [n for n, x in zip(self.param_names, p) if not math.isfinite(x)]
             raise InputError(f"{self.name} camera: parameters must be finite, got {bad} non-finite")
+        # a finite but absurd value (1e308 px) is a unit mistake or an attack: it overflows every
+        # projection and stalls the solvers; see rigcal.io.limits.MAX_ABS
+        from rigcal.io.limits import MAX_ABS
+
+        for field_name in ("width", "height"):
+            if getattr(self, field_name) > MAX_ABS["px"]:
+                raise InputError(
+                    f"{self.name} camera: {field_name} is {getattr(self, field_name)}, expected at "
+                    f"most {MAX_ABS['px']:g} px"
+                )
+        big = [n for n, x in zip(self.param_names, p) if abs(x) > MAX_ABS["px"]]
+        if big:
+            raise InputError(
+                f"{self.name} camera: parameters {big} are beyond ±{MAX_ABS['px']:g}, expected "
+                "pixels (fx fy cx cy) and distortion coefficients of ordinary size"
+            )
         p.setflags(write=False)
         object.__setattr__(self, "params", p)
         self._check_params()

@@ -247,8 +247,8 @@ def test_write_dataset_round_trip(tmp_path):
     manifest = write_dataset(ds, tmp_path / "out")
     assert manifest == tmp_path / "out" / "rig.yaml"
     assert sorted(p.name for p in manifest.parent.iterdir()) == [
-        "cam.csv", "front_radar.csv", "lidar_top.csv", "r3.csv", "rig.yaml",
-    ]
+        ".rigcal-output", "cam.csv", "front_radar.csv", "lidar_top.csv", "r3.csv", "rig.yaml",
+    ]  # the marker lets a later run replace this folder
     back = load_manifest(manifest)
     assert_same_dataset(ds, back)
     assert back.source == str(manifest)

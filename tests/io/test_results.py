@@ -179,7 +179,9 @@ def test_write_results(tmp_path):
         "calibration.yaml", "lidar1.yaml", "camera1.yaml", "radar1.yaml", "radar3d_1.yaml",
         "calibration.launch",
     ]
-    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == sorted(p.name for p in paths)
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == sorted(
+        [".rigcal-output"] + [p.name for p in paths]
+    )
     assert paths[0].read_text() == result_to_yaml_text(result)
     assert paths[2].read_text() == original_sensor_yaml_text(result, "camera1")
     assert paths[-1].read_text() == ros1_launch_text(result)

@@ -170,7 +170,7 @@ def test_long_output_folder_name(tmp_path, cli, refused, dataset_dir):
     ("body_frame: [x]\nsensors:\n  a: {T_body_sensor: 1}\n", "body_frame: expected a frame name"),
     ("reference: a\nsensors:\n  a: {frame_id: [1]}\n", "sensors.a.frame_id"),
     ("reference: a\nsensors:\n  a: {}\n  b:\n    T_reference_sensor: [[1,0,0,1e300],[0,1,0,0],[0,0,1,0],[0,0,0,1]]\n",
-     "sensors.b.T_reference_sensor: translation"),
+     "sensors.b.T_reference_sensor: entry[0, 3] is 1e+300"),
 ])
 @pytest.mark.parametrize("command", ["export", "urdf"])
 def test_malformed_calibration_file(tmp_path, cli, refused, text, expected, command):

@@ -98,12 +98,5 @@ def as_rigid(T: np.ndarray, what: str, atol: float = 1e-6) -> np.ndarray:
         raise InputError(f"{what}: the 3x3 block is not a proper rotation")
     if not np.allclose(m[3], [0.0, 0.0, 0.0, 1.0]):
         raise InputError(f"{what}: last row must be [0, 0, 0, 1], got {m[3].tolist()}")
-    from rigcal.io.limits import MAX_ABS
-
-    if np.abs(m[:3, 3]).max() > MAX_ABS["m"]:
-        raise InputError(
-            f"{what}: translation {m[:3, 3].tolist()} m is beyond ±{MAX_ABS['m']:g} m; expected "
-            "metres"
-        )
     m.setflags(write=False)
     return m

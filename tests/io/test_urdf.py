@@ -763,3 +763,122 @@ def test_set_joint_origins_refuses_non_finite():
     u = parse_urdf(CHAIN, "c.urdf")
     with pytest.raises(InputError, match=r"c\.urdf: joint 'j2': origin needs three finite"):
         set_joint_origins(u, {"j2": ((0, 0, float("nan")), (0, 0, 0))})
+
+
+# ---------------------------------------------------------------------------------------------
+# a rigcal calibration into a URDF: links by frame_id, missing links, camera optical frames
+
+ROBOT = """<?xml version="1.0"?>
+<robot name="car">
+  <link name="base_link"/>
+  <link name="lidar"/>
+  <joint name="lidar_joint" type="fixed">
+    <parent link="base_link"/><child link="lidar"/>
+    <origin xyz="1 0 1.5" rpy="0 0 0"/>
+  </joint>
+  <link name="cam_link"/>
+  <joint name="cam_joint" type="fixed">
+    <parent link="base_link"/><child link="cam_link"/>
+    <origin xyz="1.5 0.2 1.2" rpy="0 0 0"/>
+  </joint>
+  <link name="cam_optical_frame"/>
+  <joint name="cam_optical_joint" type="fixed">
+    <parent link="cam_link"/><child link="cam_optical_frame"/>
+    <origin xyz="0 0 0" rpy="-1.5707963267948966 0 -1.5707963267948966"/>
+  </joint>
+</robot>
+"""
+
+
+def _rigid(seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return from_rt(so3_exp(rng.normal(0, 0.5, 3)), rng.normal(0, 1.0, 3))
+
+
+def _robot(tmp_path) -> Path:
+    p = tmp_path / "car.urdf"
+    p.write_text(ROBOT)
+    return p
+
+
+def test_missing_links_are_skipped_and_the_rest_reproduced(tmp_path):
+    T_lidar, T_radar = _rigid(1), _rigid(2)
+    written = write_urdf(_robot(tmp_path), tmp_path / "out.urdf",
+                         {"lidar": T_lidar, "front_radar": T_radar}, "base_link", missing="skip")
+    assert written.skipped == ("front_radar",) and written.added == ()
+    out = parse_urdf((tmp_path / "out.urdf").read_text(), "out")
+    assert np.abs(forward_kinematics(out, "base_link", "lidar") - T_lidar).max() < 1e-6
+    assert "front_radar" not in out.links
+
+
+def test_missing_links_are_added_on_request(tmp_path):
+    T_lidar, T_radar = _rigid(3), _rigid(4)
+    written = write_urdf(_robot(tmp_path), tmp_path / "out.urdf",
+                         {"lidar": T_lidar, "front_radar": T_radar}, "base_link", missing="add")
+    assert written.added == ("front_radar",) and written.skipped == ()
+    out = parse_urdf((tmp_path / "out.urdf").read_text(), "out")
+    for link, T in (("lidar", T_lidar), ("front_radar", T_radar)):
+        assert np.abs(forward_kinematics(out, "base_link", link) - T).max() < 1e-6
+    assert out.joints["front_radar_joint"].type == "fixed"
+
+
+def test_nothing_in_common_or_a_missing_body_link_says_what_to_set(tmp_path):
+    with pytest.raises(InputError, match="none of the calibrated frames .*frame_id"):
+        write_urdf(_robot(tmp_path), tmp_path / "o.urdf", {"radar1": _rigid(5)}, "base_link",
+                   missing="skip")
+    with pytest.raises(InputError, match="no link named 'lidar1'.*frame_id"):
+        write_urdf(_robot(tmp_path), tmp_path / "o.urdf", {"camera1": _rigid(5)}, "lidar1",
+                   missing="skip")
+    assert not (tmp_path / "o.urdf").exists()
+
+
+@pytest.mark.parametrize("frame", ["cam_link", "cam_optical_frame"])
+def test_camera_optical_frame_follows_rep_103(tmp_path, frame):
+    """A camera's calibrated pose is its optical frame's (z forward). Whether the manifest names
+    the body-convention link or its optical child, the optical child ends up at the calibrated
+    pose and the fixed optical rotation is kept; the camera link's joint moves."""
+    T_opt = _rigid(6)
+    written = write_urdf(_robot(tmp_path), tmp_path / "out.urdf", {frame: T_opt}, "base_link",
+                         kinds={frame: "camera"}, missing="skip")
+    assert written.notes and "REP 103" in written.notes[0]
+    out = parse_urdf((tmp_path / "out.urdf").read_text(), "out")
+    assert np.abs(forward_kinematics(out, "base_link", "cam_optical_frame") - T_opt).max() < 1e-6
+    before = parse_urdf(ROBOT, "in").joints["cam_optical_joint"].origin
+    after = out.joints["cam_optical_joint"].origin
+    assert (after.xyz, after.rpy) == (before.xyz, before.rpy)
+    # a non-camera frame of the same name is taken literally (no optical mapping)
+    literal = write_urdf(_robot(tmp_path), tmp_path / "lit.urdf", {"cam_link": T_opt}, "base_link",
+                         missing="skip")
+    assert literal.notes == ()
+    lit = parse_urdf((tmp_path / "lit.urdf").read_text(), "lit")
+    assert np.abs(forward_kinematics(lit, "base_link", "cam_link") - T_opt).max() < 1e-6
+
+
+def test_prius_calibration_into_the_shared_urdf(tmp_path):
+    """The README/guide path: a rigcal calibration of the shared Prius detections (frame ids
+    laser_link / camera / front_radar) into the shared vehicle.urdf, which has no radar link."""
+    import yaml
+
+    from rigcal.cli.main import run
+    from rigcal.io.calibration_files import read_calibration_transforms
+
+    manifest = Path(__file__).resolve().parents[2] / "examples" / "prius" / "rig.yaml"
+    vehicle = DATA / "vehicle.urdf"
+    if not vehicle.is_file():
+        pytest.skip("../shared/data not present")
+    assert run(["calibrate", str(manifest), "--mode", "fcpe", "--out", str(tmp_path / "cal"),
+                "--no-plot"]) == 0
+    cal = tmp_path / "cal" / "calibration.yaml"
+    assert run(["urdf", str(vehicle), str(cal), "--out", str(tmp_path / "skip.urdf")]) == 0
+    assert run(["urdf", str(vehicle), str(cal), "--out", str(tmp_path / "add.urdf"),
+                "--add-missing"]) == 0
+    transforms = read_calibration_transforms(cal).transforms
+    assert set(transforms) == {"camera", "front_radar"}
+    skip = parse_urdf((tmp_path / "skip.urdf").read_text(), "skip")
+    add = parse_urdf((tmp_path / "add.urdf").read_text(), "add")
+    assert "front_radar" not in skip.links and "front_radar" in add.links
+    for urdf, frames in ((skip, ["camera"]), (add, ["camera", "front_radar"])):
+        for frame in frames:
+            got = forward_kinematics(urdf, "laser_link", frame)
+            assert np.abs(got - transforms[frame]).max() < 1e-6
+    assert yaml.safe_load(cal.read_text())["sensors"]["lidar1"]["frame_id"] == "laser_link"

@@ -211,6 +211,9 @@ def _parser() -> argparse.ArgumentParser:
     out_group.add_argument("--out", metavar="OUTPUT.urdf")
     out_group.add_argument("--in-place", action="store_true", help="overwrite INPUT.urdf (a backup is kept)")
     u.add_argument("--body-link", help="link the poses are relative to (default: the calibration's parent frame)")
+    u.add_argument("--add-missing", action="store_true",
+                   help="add a link on a fixed joint from the body link for every calibrated frame the "
+                   "URDF lacks (default: skip it with a warning)")
     u.add_argument(
         "--joint", action="append", default=[], metavar="LINK=JOINT",
         help="update JOINT for the sensor LINK (default: the joint whose child is LINK)",
@@ -582,12 +585,24 @@ def _cmd_urdf(args, console) -> int:
         args.body_link or cal.parent_frame,
         in_place=args.in_place,
         joint_for=joint_for or None,
+        kinds=cal.kinds,
+        missing="add" if args.add_missing else "skip",
     )
+    done = [f for f in cal.transforms if f not in written.skipped and f not in written.added]
     console.print(
-        f"updated {len(cal.transforms)} sensor(s) ({', '.join(cal.transforms)}) relative to "
+        f"updated {len(done)} sensor link(s) ({', '.join(done) or 'none'}) relative to "
         f"'{args.body_link or cal.parent_frame}' -> {written.path}"
         + (f" (backup {written.backup})" if written.backup else "")
     )
+    for frame in written.added:
+        console.print(f"added link '{frame}' on a fixed joint from '{args.body_link or cal.parent_frame}'")
+    for note in written.notes:
+        console.print(f"note: {note}")
+    for frame in written.skipped:
+        console.print(
+            f"[yellow]warning:[/yellow] no link '{frame}' in {args.urdf_in}: skipped (set the "
+            "sensor's frame_id to its URDF link, or --add-missing)"
+        )
     return 0
 
 

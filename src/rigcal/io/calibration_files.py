@@ -12,7 +12,7 @@ child frame. Kinds:
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -29,10 +29,19 @@ class CalibrationTransforms:
     parent_frame: str
     transforms: Mapping[str, np.ndarray]  # child frame -> T_parent_child (4, 4)
     source: str = ""
+    kinds: Mapping[str, str] = field(default_factory=dict)  # child frame -> sensor kind, if known
 
 
 def _matrix(value: Any, where: str) -> np.ndarray:
     return as_rigid(value, where, atol=1e-5)
+
+
+def _kinds(sensors: Mapping[str, Any]) -> dict[str, str]:
+    return {
+        str(entry.get("frame_id", name)): entry["kind"]
+        for name, entry in sensors.items()
+        if isinstance(entry.get("kind"), str)
+    }
 
 
 def parse_calibration_transforms(text: str, source: str) -> CalibrationTransforms:
@@ -67,7 +76,7 @@ def parse_calibration_transforms(text: str, source: str) -> CalibrationTransform
             if "T_body_sensor" not in entry:
                 raise InputError(f"{source}: sensors.{name}: missing T_body_sensor")
             out[str(entry.get("frame_id", name))] = _matrix(entry["T_body_sensor"], f"{source}: sensors.{name}.T_body_sensor")
-        return CalibrationTransforms("absolute", parent, out, source)
+        return CalibrationTransforms("absolute", parent, out, source, _kinds(sensors))
     ref = data.get("reference")
     if not isinstance(ref, str) or ref not in sensors:
         raise InputError(f"{source}: reference {ref!r} is not one of the sensors {list(sensors)}")
@@ -79,7 +88,7 @@ def parse_calibration_transforms(text: str, source: str) -> CalibrationTransform
         if "T_reference_sensor" not in entry:
             raise InputError(f"{source}: sensors.{name}: missing T_reference_sensor")
         out[str(entry.get("frame_id", name))] = _matrix(entry["T_reference_sensor"], f"{source}: sensors.{name}.T_reference_sensor")
-    return CalibrationTransforms("relative", parent, out, source)
+    return CalibrationTransforms("relative", parent, out, source, _kinds(sensors))
 
 
 def read_calibration_transforms(path: str | os.PathLike[str]) -> CalibrationTransforms:

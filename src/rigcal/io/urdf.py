@@ -179,6 +179,9 @@ class OriginalCalibration(NamedTuple):
 class WrittenUrdf(NamedTuple):
     path: Path
     backup: Path | None
+    skipped: tuple[str, ...] = ()  # calibrated frames the URDF has no link for (left out)
+    added: tuple[str, ...] = ()  # links appended with a fixed joint to the body link
+    notes: tuple[str, ...] = ()  # how each calibrated frame was mapped (optical frames)
 
 
 def _names(mapping: Mapping[str, Any], limit: int = 12) -> str:
@@ -842,6 +845,144 @@ def update_urdf_text(
 
 
 # --------------------------------------------------------------------------------------------
+# calibrated frames -> URDF links (missing links, camera optical frames)
+
+#: REP 103: a camera's optical frame (x right, y down, z forward) in its body-convention link
+#: (x forward, y left, z up) is the fixed rotation rpy = (-pi/2, 0, -pi/2).
+OPTICAL_RPY = (-math.pi / 2, 0.0, -math.pi / 2)
+_R_BODY_OPTICAL = matrix_from_origin((0.0, 0.0, 0.0), OPTICAL_RPY)
+
+
+def _is_optical_joint(joint: Joint) -> bool:
+    if joint.type != "fixed":
+        return False
+    T = matrix_from_origin(joint.origin.xyz, joint.origin.rpy)
+    return bool(np.allclose(T, _R_BODY_OPTICAL, atol=1e-6))
+
+
+@dataclass(frozen=True)
+class SensorLinks:
+    """How calibrated frames map onto a URDF: ``updates`` (link -> ``T_body_link``) and
+    ``joint_for`` for :func:`update_urdf_text`, frames to ``add`` as new links, frames
+    ``skipped`` because the URDF lacks them, and a note per optical-frame mapping."""
+
+    updates: Mapping[str, np.ndarray]
+    joint_for: Mapping[str, str]
+    add: Mapping[str, np.ndarray]
+    skipped: tuple[str, ...]
+    notes: tuple[str, ...]
+
+
+def plan_sensor_links(
+    urdf: Urdf,
+    transforms: Mapping[str, Any],
+    body_link: str,
+    kinds: Mapping[str, str] | None = None,
+    add_missing: bool = False,
+) -> SensorLinks:
+    """Map calibrated frames (``{frame_id: T_body_frame}``; a camera's frame is its optical
+    frame, z forward) onto ``urdf``'s links.
+
+    * A frame that is a link (or a joint) of the URDF is updated there.
+    * A camera (``kinds[frame] == "camera"``) whose link follows REP 103's body convention and
+      has an optical child (a fixed joint with rpy = (-pi/2, 0, -pi/2)): the calibrated pose
+      is the optical child's, reached by changing the joint that carries the camera link; a
+      frame that *is* such an optical link keeps its optical joint and moves the joint above.
+    * A frame the URDF lacks is skipped, or with ``add_missing`` added as a new link on a
+      fixed joint from ``body_link``. If nothing at all matches, InputError (names both sides).
+    """
+    if body_link not in urdf.links:
+        raise InputError(
+            f"{urdf.source}: no link named '{body_link}', the frame the calibration is relative "
+            f"to (links: {_names(urdf.links)}); set the reference sensor's frame_id in the "
+            "manifest to its URDF link, or give --body-link"
+        )
+    kinds = dict(kinds or {})
+    updates: dict[str, np.ndarray] = {}
+    joint_for: dict[str, str] = {}
+    add: dict[str, np.ndarray] = {}
+    skipped: list[str] = []
+    notes: list[str] = []
+    for frame, T in transforms.items():
+        if frame == body_link:
+            continue
+        if frame not in urdf.links and frame not in urdf.joints:
+            if add_missing:
+                add[frame] = check_rigid(T, f"{urdf.source}: T_{body_link}_{frame}")
+            else:
+                skipped.append(frame)
+            continue
+        if kinds.get(frame) == "camera" and frame in urdf.links:
+            carrier = urdf.joint_to(frame)
+            optical_children = [
+                j for j in urdf.joints.values() if j.parent == frame and _is_optical_joint(j)
+            ]
+            if carrier is not None and _is_optical_joint(carrier) and urdf.joint_to(carrier.parent):
+                joint_for[frame] = urdf.joint_to(carrier.parent).name  # type: ignore[union-attr]
+                notes.append(
+                    f"'{frame}' is an optical frame (REP 103): its optical joint "
+                    f"'{carrier.name}' is kept, joint '{joint_for[frame]}' moves"
+                )
+            elif len(optical_children) == 1 and carrier is not None:
+                child = optical_children[0].child
+                updates[child] = T
+                joint_for[child] = carrier.name
+                notes.append(
+                    f"camera frame '{frame}' follows the body convention (REP 103) and has the "
+                    f"optical frame '{child}': the calibrated optical pose is set there, "
+                    f"joint '{carrier.name}' moves"
+                )
+                continue
+        updates[frame] = T
+    if not updates and not add:
+        raise InputError(
+            f"{urdf.source}: none of the calibrated frames ({', '.join(map(str, transforms))}) "
+            f"is a link of the URDF (links: {_names(urdf.links)}); set each sensor's frame_id "
+            "in the manifest to its URDF link, or add the links (--add-missing)"
+        )
+    return SensorLinks(updates, joint_for, add, tuple(skipped), tuple(notes))
+
+
+def add_fixed_links(text: str, source: str, links: Mapping[str, Any], body_link: str) -> str:
+    """``text`` with a ``<link name=...>`` and a fixed ``<joint>`` from ``body_link`` per entry of
+    ``links`` (``{name: T_body_link}``), inserted before ``</robot>``."""
+    if not links:
+        return text
+    urdf = parse_urdf(text, source)
+    end = text.rfind("</robot>")
+    if end < 0:  # pragma: no cover - parse_urdf has checked the root element
+        raise InputError(f"{source}: no </robot> closing tag to add links before")
+    line_start = text.rfind("\n", 0, end) + 1
+    own_line = text[line_start:end].strip() == ""
+    m = re.search(r"\n([ \t]*)<(?:link|joint)\b", text)
+    indent = (m.group(1) if m else "  ") if own_line else ""
+    step = indent if indent.strip() == "" and indent else "  "
+    taken = set(urdf.joints)
+    pieces = []
+    for name, T in links.items():
+        if not re.fullmatch(r"[A-Za-z0-9_./-]+", name):
+            raise InputError(f"{source}: cannot add a link named {name!r} (letters, digits, _ . / -)")
+        joint = f"{name}_joint"
+        k = 1
+        while joint in taken:
+            joint, k = f"{name}_joint_{k}", k + 1
+        taken.add(joint)
+        xyz, rpy = origin_from_matrix(check_rigid(T, f"{source}: T_{body_link}_{name}"))
+        pieces.append(
+            f'{indent}<link name="{name}"/>\n'
+            f'{indent}<joint name="{joint}" type="fixed">\n'
+            f'{indent}{step}<parent link="{body_link}"/>\n'
+            f'{indent}{step}<child link="{name}"/>\n'
+            f'{indent}{step}<origin xyz="{_triple(xyz)}" rpy="{_triple(rpy)}"/>\n'
+            f"{indent}</joint>\n"
+        )
+    insert_at = line_start if own_line else end
+    new_text = text[:insert_at] + "".join(pieces) + text[insert_at:]
+    parse_urdf(new_text, source)  # still a valid tree
+    return new_text
+
+
+# --------------------------------------------------------------------------------------------
 # the original tool's calibration YAML
 
 
@@ -938,6 +1079,9 @@ def write_urdf(
     body_link: str,
     in_place: bool = False,
     joint_for: Mapping[str, str] | None = None,
+    *,
+    kinds: Mapping[str, str] | None = None,
+    missing: str = "error",
 ) -> WrittenUrdf:
     """Update ``in_path`` (see :func:`update_urdf_text`) and write the result atomically.
 
@@ -946,7 +1090,15 @@ def write_urdf(
     copied to ``<name>.bak`` (``.bak.1``, ``.bak.2``... if taken), then the input is replaced.
     A symlinked input is updated where it points. A UTF-8 byte-order mark is kept. Nothing is
     written if the update is refused. Returns the written path and the backup (or None).
+
+    ``missing`` says what happens to an update key the URDF has no link or joint for:
+    ``"error"`` (refused), ``"skip"`` (left out, listed in ``skipped``) or ``"add"`` (a new link
+    on a fixed joint from ``body_link``, listed in ``added``); with ``"skip"``/``"add"``,
+    ``kinds`` (frame -> sensor kind) maps camera optical frames as :func:`plan_sensor_links`
+    describes.
     """
+    if missing not in ("error", "skip", "add"):
+        raise InputError(f"missing must be 'error', 'skip' or 'add', got {missing!r}")
     source = Path(in_path)
     original, text = _read_urdf_file(source)
     if in_place:
@@ -968,7 +1120,19 @@ def write_urdf(
                 f"{target}: is the input file; refusing to overwrite it without in_place=True "
                 "(which keeps a backup)"
             )
-    new_text = update_urdf_text(text, str(source), updates, body_link, joint_for)
+    skipped: tuple[str, ...] = ()
+    added: tuple[str, ...] = ()
+    notes: tuple[str, ...] = ()
+    if missing == "error":
+        new_text = update_urdf_text(text, str(source), updates, body_link, joint_for)
+    else:
+        plan = plan_sensor_links(parse_urdf(text, str(source)), updates, body_link, kinds,
+                                 add_missing=missing == "add")
+        new_text = add_fixed_links(text, str(source), plan.add, body_link)
+        if plan.updates:
+            new_text = update_urdf_text(new_text, str(source), plan.updates, body_link,
+                                        {**plan.joint_for, **dict(joint_for or {})})
+        skipped, added, notes = plan.skipped, tuple(plan.add), plan.notes
     bom = _BOM if original.startswith(_BOM) else b""
     backup = None
     if in_place:
@@ -979,4 +1143,4 @@ def write_urdf(
             pass
         target = source.resolve()  # through a symlink: update the file it points to
     atomic_write_bytes(target, bom + new_text.encode("utf-8"))
-    return WrittenUrdf(target, backup)
+    return WrittenUrdf(target, backup, skipped, added, notes)

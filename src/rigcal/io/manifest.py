@@ -90,6 +90,22 @@ class _Manifest:
     ignore: str | None
 
 
+def _refuse_detection_rig(data: Mapping[Any, Any], source: str) -> None:
+    """A detection rig (sensors with recording topics, no detection files) given as a manifest
+    is named as such, with the commands that take it."""
+    sensors = data.get("sensors")
+    raw_keys = {"topic", "input", "right_topic", "intrinsics", "camera_info_topic", "detector"}
+    if isinstance(sensors, list) and any(
+        isinstance(s, dict) and "detections" not in s and raw_keys & set(s) for s in sensors
+    ):
+        raise InputError(
+            f"{source}: looks like a detection rig (sensors with recording topics, no "
+            "'detections' files), not a dataset manifest; use it with --rig: rigcal calibrate "
+            f"RECORDING --rig {source} --out DIR, or rigcal detect RECORDING --rig {source} "
+            "--out DIR"
+        )
+
+
 def _check_keys(value: Mapping[Any, Any], allowed: Sequence[str], where: str) -> None:
     unknown = [str(k) for k in value if k not in allowed]
     if unknown:
@@ -191,6 +207,7 @@ def _parse_spec(text: str, source: str) -> _Manifest:
         )
     if "sensors" not in data:
         raise InputError(f"{source}: missing required key 'sensors' (a list of sensors)")
+    _refuse_detection_rig(data, source)
     _check_keys(data, _TOP_KEYS, source)
     raw_sensors = data["sensors"]
     if not isinstance(raw_sensors, list) or not raw_sensors:

@@ -107,6 +107,12 @@ def _parse_sensor(i: int, raw: Any, source: str, base_dir: Path) -> SensorSetup:
     where = f"{source}: sensors[{i}]"
     if not isinstance(raw, dict):
         raise InputError(f"{where}: expected a mapping with name, kind, topic, got {type_name(raw)}")
+    if "topic" not in raw and "detections" in raw:
+        raise InputError(
+            f"{where}: has 'detections' and no 'topic': {source} is a dataset manifest "
+            "(detection files), not a detection rig (raw data); calibrate it directly: "
+            f"rigcal calibrate {source}"
+        )
     for key in ("name", "kind", "topic"):
         if key not in raw:
             raise InputError(f"{where}: missing required key '{key}' (required: name, kind, topic)")

@@ -644,12 +644,12 @@ EPILOG = """examples:
 
 def add_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     """Add the ``rigcal study mocap`` options to ``parser``."""
-    from rigcal.cli.args import count, number
+    from rigcal.cli.args import number
 
     parser.add_argument("--target", choices=TARGETS, default="diamond", help="target (default diamond)")
     parser.add_argument("--sensor", choices=SENSORS, default=LIDAR, help="sensor to calibrate (default lidar)")
-    parser.add_argument("--trials", type=count(1, 10000), default=10, help="seeded trials (default 10)")
-    parser.add_argument("--measurements", type=count(1, 10000), nargs="+", default=[5, 15, 30], metavar="N",
+    parser.add_argument("--trials", type=int, default=10, help="seeded trials (default 10)")
+    parser.add_argument("--measurements", type=int, nargs="+", default=[5, 15, 30], metavar="N",
                         help="numbers of measurements per calibration (default 5 15 30)")
     parser.add_argument("--mcs-noise-mm", type=number(0.0, 1000.0), default=0.0,
                         help="motion-capture position noise per axis [mm] (default 0: exact; Vicon 0.15)")

@@ -4,7 +4,11 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test lint bench clean
+.PHONY: demo test test-all lint bench clean
+
+# two workers (the 2-core CI machine); slow cases only in CI (CI=1, set by .ci/run) or test-all
+JOBS ?= 2
+SLOW := $(if $(CI),,-m "not slow")
 
 $(STAMP): pyproject.toml
 	test -d $(VENV) || $(PYTHON) -m venv $(VENV)
@@ -16,7 +20,10 @@ demo: $(STAMP)
 	$(BIN)/rigcal demo --out demo_out
 
 test: $(STAMP)
-	$(BIN)/python -m pytest -p no:cacheprovider
+	$(BIN)/python -m pytest -p no:cacheprovider -n $(JOBS) $(SLOW)
+
+test-all: $(STAMP)
+	$(BIN)/python -m pytest -p no:cacheprovider -n $(JOBS)
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_solvers.py

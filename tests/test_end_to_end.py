@@ -25,6 +25,8 @@ from rigcal.sensors.radar import project_2d
 from rigcal.sim.raw import raw_rig_placements, simulate_recording
 from rigcal.targets.circle_board import board_centres, reflector_in_board
 
+pytestmark = pytest.mark.slow  # long: run in CI (CI=1 make test) and make test-all
+
 PLACEMENTS = 8
 
 

@@ -54,6 +54,7 @@ def test_study_mocap_bad_option_is_a_usage_error(capsys):
 # rigcal demo --mocap
 
 
+@pytest.mark.slow
 def test_demo_mocap_calibrates_three_sensors_with_no_shared_view(tmp_path, capsys):
     out = tmp_path / "demo"
     assert run(["demo", "--mocap", "--out", str(out), "--seed", "2", "--holds", "3"]) == 0
@@ -139,6 +140,7 @@ def _copy_scene(scene, folder, edit=None):
     return folder / scene.config_path.name
 
 
+@pytest.mark.slow
 def test_mocap_cli_a_camera_that_never_sees_the_target_is_not_calibrated(scene, tmp_path, capsys, caplog):
     # camera1's images are blank: it never sees the target, whatever the search window; the
     # lidar still sees every hold and is calibrated; three robot poses are NaN (mocap dropouts)

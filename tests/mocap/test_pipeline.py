@@ -113,6 +113,7 @@ def test_recovers_the_extrinsics(scene, run):
     assert fit["camera1"].noise_sigma < 1.0  # sharp corners: well below the configured 1 px
 
 
+@pytest.mark.slow
 def test_lidar_points_on_the_plate_beat_its_corners(scene, run, tmp_path):
     # the same bag, the lidar measured by every point on the diamond (use_lidar_keypoints:
     # false) and tied to the plate's surface: the scans are exact, so is the calibration
@@ -272,6 +273,7 @@ def test_every_frame_in_a_mocap_gap_is_an_error_naming_the_sensor(scene, tmp_pat
         run_mocap(cfg)
 
 
+@pytest.mark.slow
 def test_a_mocap_dropout_over_one_sensors_holds_leaves_it_not_calibrated(scene, tmp_path):
     # the robot body is lost for the whole of every camera hold: the camera has no usable frame
     # (no_pose_data there, the target out of its view elsewhere); the lidar is calibrated from
@@ -308,6 +310,7 @@ def test_a_mocap_dropout_over_one_sensors_holds_leaves_it_not_calibrated(scene, 
         assert {row["sensor"] for row in csv.DictReader(fh)} == {"lidar1", "camera1"}
 
 
+@pytest.mark.slow
 def test_a_target_never_seen_is_an_error(scene, tmp_path):
     end = int(scene.frames["camera1"][-1]) + NS
     far = from_rt(np.eye(3), [0.0, 0.0, 25.0])  # high above the robot: out of every view
@@ -354,6 +357,7 @@ def test_missing_topics_are_errors(scene, tmp_path):
         run_mocap(load_mocap_config(path))
 
 
+@pytest.mark.slow
 def test_template_based_lidar_measurements(scene, tmp_path):
     """A target whose lidar keypoints are not used (the original tool's use_lidar_keypoints:
     false, as for sparse lidars): the scan points on the fitted template are measured without
@@ -394,6 +398,7 @@ def _hand_measured(T: np.ndarray, rng: np.random.Generator, metres: float = 0.10
     return from_rt(T[:3, :3] @ R, T[:3, 3] + d / np.linalg.norm(d) * metres)
 
 
+@pytest.mark.slow
 def test_a_hand_measured_guess_reaches_the_good_answer(scene, run, tmp_path):
     # every initial guess 10 cm / 15 deg off in a random direction (seeded): the search widens
     # for a sensor that finds nothing, then every pass is guided by the last calibration

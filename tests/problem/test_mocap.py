@@ -141,6 +141,7 @@ def test_non_overlapping_rig_with_noise_within_reported_uncertainty():
         assert 0 < std_t and err < 4 * std_t + 1e-4, (key, err, std_t)
 
 
+@pytest.mark.slow
 def test_cylinder_targets_need_correspondence_iterations_and_converge():
     rng = np.random.default_rng(2)
     obs = _observations(rng, 30, noise_m=0.001, noise_px=0.2, cylinder_for=("lidar1",))

@@ -59,6 +59,7 @@ def _draws(K: int, n: int, seed: int) -> list[np.ndarray]:
     "mode, K, n",
     [("fcpe", 4, 40), ("fcpe", 10, 40), ("mcpe", 4, 40), ("mcpe", 10, 40), ("pse", 4, 12), ("pse", 10, 6)],
 )
+@pytest.mark.slow
 def test_random_board_subsets_all_converge(real_dataset, mode, K, n):
     """Seeded draws of K of the 29 boards (the issue measured 0-6 % FCPE, 0-3 % MCPE and
     4-29 % PSE failures on such draws); every one must converge to a feasible point. (PSE draws

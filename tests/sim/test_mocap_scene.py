@@ -55,6 +55,7 @@ def _rss(std, keys):
     return math.sqrt(sum(std[k] ** 2 for k in keys))
 
 
+@pytest.mark.slow
 def test_every_sensor_is_calibrated_to_the_robot_frame(scene, run):
     s, _ = scene
     assert tuple(run.result.sensors) == NAMES and run.result.reference == "robot"
@@ -104,6 +105,7 @@ def _still(scene):
     return spans
 
 
+@pytest.mark.slow
 def test_the_sensors_share_no_view(scene, run):
     s, _ = scene
     assert [h.sensor for h in s.holds] == [n for n in NAMES for _ in range(4)]
@@ -126,6 +128,7 @@ def test_the_sensors_share_no_view(scene, run):
         assert counts[name]["kept"] >= 12 and counts[name]["target_not_in_view"] > 60
 
 
+@pytest.mark.slow
 def test_the_folder_holds_what_rigcal_mocap_reads(scene):
     s, calls = scene
     total = sum(len(t) for t in s.frames.values())

@@ -27,6 +27,7 @@ def _row(table: StudyTable, n: int):
     return r
 
 
+@pytest.mark.slow
 def test_camera_with_the_diamond_reaches_the_papers_accuracy():
     # paper, Table III: 0.066-0.136 mm and 0.035 deg (its own error definitions)
     t = run_mocap_study("diamond", "camera", measurements=(5, 15), trials=1, seed=1)

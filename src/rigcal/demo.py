@@ -185,6 +185,13 @@ def detection_errors(run, recording) -> dict[str, np.ndarray]:
     return {k: np.array(v) for k, v in out.items()}
 
 
+def _size_bytes(path: Path) -> int:
+    """Size of a file, or of every file under a folder (a ROS2 bag)."""
+    if path.is_dir():
+        return sum(p.stat().st_size for p in path.rglob("*") if p.is_file())
+    return path.stat().st_size
+
+
 def raw_demo(
     out_dir: str | os.PathLike[str],
     seed: int = 7,
@@ -225,6 +232,7 @@ def raw_demo(
             run = run_detection(
                 recording, rig, progress=(lambda d, t: progress("detecting", d, t)) if progress else None
             )
+        bag_mb = _size_bytes(bag) / 1e6
     write_dataset(run.dataset, out / "dataset")
     outcomes = _calibrate_all(run.dataset, rec.truth, out)
     det_err = detection_errors(run, rec)
@@ -234,7 +242,10 @@ def raw_demo(
         + ", ".join(f"{k} {np.median(v) * 1000:.1f} / {np.max(v) * 1000:.1f}" for k, v in det_err.items()),
     ]
     if keep_bag:
-        notes.append(f"bag kept at {bag}")
+        notes.append(f"bag kept at {bag} ({bag_mb:.0f} MB)")
+    else:
+        notes.append(f"the simulated {bag_format} bag ({bag_mb:.0f} MB) was deleted after detection; "
+                     "--keep-bag keeps it in the output folder")
     return DemoReport(
         description=(
             f"simulated raw data ({', '.join(f'{s.name}: {type(s.model).__name__}' for s in sensors)}), "

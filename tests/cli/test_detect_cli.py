@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -53,6 +55,11 @@ def test_detect_writes_a_dataset_and_calibrate_reads_a_recording(tmp_path, rig, 
     assert run(["detect", str(bag), "--rig", str(rig), "--out", str(tmp_path / "det")]) == 0
     out = capsys.readouterr().out
     assert "4 board placements found" in out and "radar1" in out
+    # stdout is not a terminal: the progress is plain lines, the last at 100 % with the time
+    lines = [ln for ln in out.splitlines() if ln.startswith("detecting: ")]
+    assert 2 <= len(lines) <= 12, lines
+    assert re.fullmatch(r"detecting: (\d+)/\1 frames \(100%\), [0-9.]+ s", lines[-1]), lines
+    assert all(len(line) <= 80 for line in out.splitlines()) and "…" not in out
     assert (tmp_path / "det" / "rig.yaml").is_file() and (tmp_path / "det" / "radar2.csv").is_file()
 
 
@@ -115,4 +122,5 @@ def test_calibrate_with_rig_runs_detection_first(tmp_path, rig, capsys):
     out = capsys.readouterr()
     assert code == 0, out.err
     assert "4 board placements found" in out.out and "radar2-radar1" in out.out.replace("radar1-radar2", "radar2-radar1")
+    assert re.search(r"^detecting: (\d+)/\1 frames \(100%\), [0-9.]+ s$", out.out, re.M), out.out
     assert (tmp_path / "cal" / "calibration.yaml").is_file()

@@ -27,6 +27,9 @@ def test_mocap_cli_writes_results_diagnostics_and_overlays(tmp_path, capsys):
     pngs = list((out / "overlays").glob("*.png"))
     assert pngs and all(p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" for p in pngs)
     assert "measurements per sensor" in captured.err and "target_moving" in captured.err
+    # stderr (the summary, --json) is not a terminal: progress lines, tables within 80 columns
+    assert re.search(r"^extracting: (\d+)/\1 frames \(100%\), [0-9.]+ s$", captured.err, re.M), captured.err
+    assert all(len(line) <= 80 for line in captured.err.splitlines()) and "…" not in captured.err
 
 
 def test_mocap_cli_bad_config_is_one_line(tmp_path, capsys):
@@ -60,25 +63,34 @@ def test_demo_mocap_calibrates_three_sensors_with_no_shared_view(tmp_path, capsy
     assert run(["demo", "--mocap", "--out", str(out), "--seed", "2", "--holds", "3"]) == 0
     text = capsys.readouterr().out
     assert "T_robot_sensor against the simulated truth" in text
-    rows = {}
-    for name in ("lidar1", "camera1", "camera2"):
-        line = next(ln for ln in text.splitlines() if re.match(rf"│ {name} +│", ln))
-        cells = [c.strip() for c in line.strip().strip("│").split("│")]
-        rows[name] = cells
+    # two tables within 80 columns: the errors (sensor, model, initial, final, std), then the
+    # measurements (sensor, frames, kept, rejected, reasons)
+    rows, counts = {}, {}
+    for line in text.splitlines():
+        m = re.match(r"│ (lidar1|camera1|camera2) +│", line)
+        if m:
+            cells = [c.strip() for c in line.strip().strip("│").split("│")]
+            (counts if m.group(1) in rows else rows)[m.group(1)] = cells
+        if "│" in line or "┃" in line:
+            assert len(line) <= 80, line
+    assert set(rows) == set(counts) == {"lidar1", "camera1", "camera2"}
     # measured with --seed 2 --holds 3: final 0.00 / 0.39 / 0.50 mm and 0.000 / 0.006 / 0.015 deg
     # from 34 / 32 / 26 mm and 4.6 / 3.9 / 7.9 deg (the lidar measured by every point of the
     # plate: two holds would leave its pose undetermined, see the bad options below)
     for name, cells in rows.items():
         initial_mm = float(cells[2].split("/")[0])
         final_mm, final_deg = (float(v) for v in cells[3].split("/"))
-        frames, kept, rejected = (int(v) for v in cells[5:8])
+        frames, kept, rejected = (int(v) for v in counts[name][1:4])
         assert initial_mm > 5.0 and final_mm < 0.2 * initial_mm and final_deg < 0.5, (name, cells)
         assert kept > 0 and kept + rejected == frames, (name, cells)
     assert rows["camera2"][1] == "radtan camera" and rows["lidar1"][1] == "vlp16 lidar"
     for f in ("scene/run.bag", "scene/mocap.yaml", "scene/initial.json", "scene/camera2.yaml",
               "results/calibration.yaml", "results/extrinsics.json", "results/diagnostics.csv"):
         assert (out / f).is_file(), f
-    assert f"rigcal mocap {out / 'scene' / 'mocap.yaml'}" in text.replace("\n", "")
+    assert f"rigcal mocap {out / 'scene' / 'mocap.yaml'} --out {out / 'results'}" in text  # one line
+    # stdout is not a terminal: progress as plain lines, each stage ending at 100 %
+    for stage, unit in (("simulating the session", ""), ("extracting targets", " frames")):
+        assert re.search(rf"^{stage}: (\d+)/\1{unit} \(100%\), [0-9.]+ s$", text, re.M), stage
 
 
 @pytest.mark.parametrize("argv, message", [

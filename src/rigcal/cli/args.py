@@ -38,3 +38,19 @@ def number(lo: float = 0.0, hi: float = math.inf) -> Callable[[str], float]:
 
     parse.__name__ = "number"
     return parse
+
+
+def add_verbose(parser: argparse.ArgumentParser) -> None:
+    """``-v/--verbose`` on a subcommand too, so it may follow the subcommand's name; the default
+    is left to the top-level parser (``rigcal -v calibrate ...`` stays verbose)."""
+    parser.add_argument("-v", "--verbose", action="store_true", default=argparse.SUPPRESS,
+                        help="log progress to stderr (also before the command's name)")
+
+
+def subcommand(sub, name: str, **kwargs) -> argparse.ArgumentParser:
+    """``sub.add_parser(name, ...)`` with the description and epilog printed as written and
+    ``-v/--verbose``."""
+    kwargs.setdefault("formatter_class", argparse.RawDescriptionHelpFormatter)
+    parser = sub.add_parser(name, **kwargs)
+    add_verbose(parser)
+    return parser

@@ -46,6 +46,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
+from rigcal.cli.study import EPILOG, add_arguments  # the options: light, for a fast start
 from rigcal.dataset import SensorKind
 from rigcal.errors import ConvergenceError, GeometryError, InputError, RigcalError
 from rigcal.geometry.se3 import from_rt, invert, transform_points
@@ -631,41 +632,7 @@ def _describe(target, sensor, lidar_measurement, correspondences, lidar_range_si
 
 
 # --------------------------------------------------------------------------------------------
-# command line shell
-
-EPILOG = """examples:
-  rigcal study mocap --trials 20
-  rigcal study mocap --lidar-measurement keypoints      # the paper's corner-based simulation
-  rigcal study mocap --lidar-noise-mm 10 --mcs-noise-mm 0.15
-  rigcal study mocap --target cylinder --sensor lidar --trials 20
-  rigcal study mocap --target diamond --sensor camera --mcs-noise-mm 0.15
-"""
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
-    """Add the ``rigcal study mocap`` options to ``parser``."""
-    from rigcal.cli.args import number
-
-    parser.add_argument("--target", choices=TARGETS, default="diamond", help="target (default diamond)")
-    parser.add_argument("--sensor", choices=SENSORS, default=LIDAR, help="sensor to calibrate (default lidar)")
-    parser.add_argument("--trials", type=int, default=10, help="seeded trials (default 10)")
-    parser.add_argument("--measurements", type=int, nargs="+", default=[5, 15, 30], metavar="N",
-                        help="numbers of measurements per calibration (default 5 15 30)")
-    parser.add_argument("--mcs-noise-mm", type=number(0.0, 1000.0), default=0.0,
-                        help="motion-capture position noise per axis [mm] (default 0: exact; Vicon 0.15)")
-    parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    parser.add_argument("--overlapping", action="store_true", help="camera looks forward with the lidar")
-    parser.add_argument("--lidar-measurement", choices=("keypoints", "points"), default="points",
-                        help="lidar: every on-target point (default; the paper's choice on real data) or the "
-                        "diamond's corners from ICP (the paper's simulation)")
-    parser.add_argument("--correspondences", choices=CORRESPONDENCES, default="surface",
-                        help="points without keypoints: closest surface point after the paper's matching "
-                        "(default) or the paper's centroid-aligned matching throughout")
-    parser.add_argument("--lidar-noise-mm", type=number(0.0, 1000.0), default=0.0, help="lidar range noise [mm] (default 0)")
-    parser.add_argument("--same-data", action="store_true",
-                        help="every trial sees the same captures, only the initial calibration changes")
-    parser.add_argument("--json", action="store_true", help="print the table as JSON")
-    return parser
+# command line shell (its options: rigcal.cli.study.add_arguments)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,0 +1,116 @@
+"""``rigcal calibrate``: a rig from board detections (a manifest, the original tool's files, or a
+recording detected first with ``--rig``)."""
+
+from __future__ import annotations
+
+import sys
+
+from rigcal.cli.args import count, subcommand
+
+EPILOG = """examples:
+  rigcal calibrate rig.yaml --mode fcpe --out results/
+  rigcal calibrate rig.yaml --mode pse --reference lidar1 --out results/ --json
+  rigcal calibrate --lidar lidar.csv --camera camera.csv --radar radar.csv --mode fcpe --out results/
+
+exit codes: 0 consistent result written; 1 error; 2 usage; 3 the result contradicts its own
+noise model (nothing written unless --force)
+"""
+
+
+def add_parser(sub) -> None:
+    c = subcommand(
+        sub, "calibrate",
+        help="calibrate a rig from board detections",
+        description="Calibrate every sensor of a rig into the reference sensor's frame from "
+        "detections of the circle board (manifest rig.yaml, or the original tool's CSV/YAML "
+        "files with --lidar/--camera/--radar).",
+        epilog=EPILOG,
+    )
+    c.add_argument(
+        "manifest", nargs="?",
+        help="rig.yaml manifest (or a folder holding one); with --rig, a recording to detect first",
+    )
+    c.add_argument("--rig", metavar="RIG_YAML", help="detection rig: treat MANIFEST as a recording, detect, then calibrate")
+    c.add_argument("--lidar", action="append", default=[], metavar="FILE", help="lidar detections (repeatable)")
+    c.add_argument("--camera", action="append", default=[], metavar="FILE", help="camera detections (repeatable)")
+    c.add_argument("--radar", action="append", default=[], metavar="FILE", help="2D radar detections (repeatable)")
+    c.add_argument("--radar3d", action="append", default=[], metavar="FILE", help="3D radar detections (repeatable)")
+    c.add_argument("--mode", default="fcpe", choices=["mcpe", "fcpe", "pse"], help="configuration (default fcpe)")
+    c.add_argument("--reference", help="reference sensor name (default: manifest's, else first lidar)")
+    c.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    c.add_argument("--json", action="store_true", help="print the result as JSON on stdout")
+    c.add_argument("--ignore", metavar="FILE", help="original tool's ignore file (sensor -> CSV columns)")
+    c.add_argument("--keep-outliers", action="store_true", help="do not search for bad detections")
+    c.add_argument(
+        "--hold-radar-plane",
+        action="store_true",
+        help="hold each 2D radar's z, roll and pitch at the initial guess",
+    )
+    c.add_argument("--initial", metavar="FILE", help="initial guesses: a previous calibration.yaml")
+    c.add_argument("--cv-folds", type=count(0, 1000), default=5, metavar="N", help="leave-boards-out folds (0 = off)")
+    c.add_argument("--no-plot", action="store_true", help="do not write calibration.png")
+    c.add_argument(
+        "--pse-noise", default="iterated", choices=["iterated", "identity"],
+        help="PSE: per-sensor noise re-estimated until converged (default), or fixed at 1 "
+        "(the original tool's variant)",
+    )
+    c.add_argument(
+        "--force", action="store_true",
+        help="write the result even when the consistency check flags it (exit code stays 3)",
+    )
+    c.set_defaults(func=run)
+
+
+def run(args, console) -> int:
+    from rigcal.cli.codes import EXIT_FLAGGED
+    from rigcal.cli.detect import detect_recording
+    from rigcal.cli.output import not_written, summary
+    from rigcal.errors import InputError
+    from rigcal.io.atomic import staged_folder
+    from rigcal.io.calibration_files import read_initial_poses
+    from rigcal.io.ignore import read_ignore_file
+    from rigcal.io.manifest import dataset_from_files, load_manifest
+    from rigcal.io.results import result_to_json_text, write_results
+    from rigcal.problem.calibrate import CalibrationOptions, calibrate
+
+    files = args.lidar or args.camera or args.radar or args.radar3d
+    if args.manifest and files:
+        raise InputError("give either a manifest or --lidar/--camera/--radar files, not both")
+    if args.rig:
+        if not args.manifest or files:
+            raise InputError("--rig needs a recording as the positional argument (and no --lidar/--camera/--radar)")
+        dataset = detect_recording(args.manifest, args.rig, console).dataset
+    elif args.manifest:
+        dataset = load_manifest(args.manifest)
+    elif files:
+        dataset = dataset_from_files(
+            lidar=args.lidar, camera=args.camera, radar=args.radar, radar3d=args.radar3d
+        )
+    else:
+        raise InputError("no input: give a rig.yaml manifest or --lidar/--camera/--radar files")
+    if args.ignore:
+        dataset = dataset.with_excluded(read_ignore_file(args.ignore, dataset))
+    options = CalibrationOptions(
+        mode=args.mode,
+        reference=args.reference,
+        detect_outliers=not args.keep_outliers,
+        hold_radar_plane=args.hold_radar_plane,
+        initial=read_initial_poses(args.initial) if args.initial else None,
+        cross_validation_folds=args.cv_folds,
+        pse_noise=args.pse_noise,
+    )
+    result = calibrate(dataset, options)
+    if result.flagged and not args.force:
+        summary(result, console)
+        return not_written(console)
+    with staged_folder(args.out) as stage:
+        write_results(result, stage)
+        if not args.no_plot:
+            from rigcal.report.plot import plot_calibration
+
+            plot_calibration(dataset, result, stage / "calibration.png")
+    if args.json:
+        sys.stdout.write(result_to_json_text(result) + "\n")
+    summary(result, console)
+    console.print(f"results written to {args.out}/" + (" (FLAGGED, written with --force)" if result.flagged else ""))
+    return EXIT_FLAGGED if result.flagged else 0

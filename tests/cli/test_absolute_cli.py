@@ -84,3 +84,35 @@ def test_unknown_external_sensor(inputs, capsys):
         "--labels", str(tmp / "labels.yaml"), "--out", str(tmp / "o2"),
     ])
     assert code == 1 and "faro" in capsys.readouterr().err
+
+
+def test_absolute_takes_the_radar_plane_options_its_warning_recommends(inputs, tmp_path, capsys):
+    """The relative calibration's warning recommends --initial and --hold-radar-plane; rigcal
+    absolute accepts both (it used to refuse them)."""
+    tmp, manifest, _ = inputs
+    common = [str(manifest), "--external", "leica", "--scan", str(tmp / "scan.pcd"),
+              "--labels", str(tmp / "labels.yaml")]
+    assert run(["absolute", *common, "--out", str(tmp_path / "plain")]) == 0
+    assert "--hold-radar-plane" in capsys.readouterr().out.replace("\n", " ")
+    assert run(["calibrate", str(manifest), "--reference", "leica", "--out", str(tmp_path / "ref"),
+                "--no-plot"]) == 0
+    capsys.readouterr()
+    assert run(["absolute", *common, "--hold-radar-plane", "--initial",
+                str(tmp_path / "ref" / "calibration.yaml"), "--out", str(tmp_path / "held")]) == 0
+    held = yaml.safe_load((tmp_path / "held" / "absolute.yaml").read_text())
+    assert held["sensors"]["radar1"]["held"]
+
+
+def test_demo_absolute_runs_the_absolute_path_into_a_urdf(tmp_path, capsys):
+    import shlex
+
+    out = tmp_path / "demo"
+    assert run(["demo", "--absolute", "--out", str(out), "--seed", "2"]) == 0
+    text = capsys.readouterr().out
+    assert "T_body_sensor against the simulated truth" in text
+    for name in ("scene/scan.pcd", "scene/wheels.yaml", "absolute/absolute.yaml",
+                 "vehicle_calibrated.urdf"):
+        assert (out / name).is_file(), name
+    again = next(line for line in text.splitlines() if line.startswith("run it again with: "))
+    argv = shlex.split(again.split(": ", 1)[1])
+    assert argv[0] == "rigcal" and run(argv[1:]) == 0  # the printed command works as printed

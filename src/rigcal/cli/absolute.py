@@ -34,6 +34,12 @@ def add_parser(sub) -> None:
         "--ground-check", action="append", default=[], metavar="SENSOR=CLOUD",
         help="a sensor's scan of flat ground: report the angle of its ground normal in the body frame (eq. 13)",
     )
+    a.add_argument("--hold-radar-plane", action="store_true",
+                   help="hold every 2D radar's z, roll and pitch at the initial guess (with --initial: "
+                   "the known mounting), as `rigcal calibrate --hold-radar-plane`")
+    a.add_argument("--initial", metavar="FILE",
+                   help="initial guesses: a calibration.yaml whose reference is the external scanner "
+                   "(e.g. rigcal calibrate rig.yaml --reference NAME)")
     a.add_argument("--out", required=True, metavar="DIR")
     a.add_argument("--json", action="store_true", help="print absolute.json on stdout")
     a.add_argument(
@@ -55,6 +61,8 @@ def run(args, console) -> int:
     from rigcal.io._text import read_text
     from rigcal.io.absolute_io import absolute_to_json_text, write_absolute
     from rigcal.io.atomic import staged_folder
+    from rigcal.io.calibration_files import read_initial_poses
+    from rigcal.problem.calibrate import CalibrationOptions
     from rigcal.io.manifest import load_manifest
     from rigcal.io.pointcloud import read_point_cloud
 
@@ -73,6 +81,10 @@ def run(args, console) -> int:
         dataset, args.external, labels, scan, args.method, args.origin, args.mode,
         body_frame=args.body_frame,
         label_sigma_m=None if args.label_sigma_mm is None else args.label_sigma_mm / 1000.0,
+        options=CalibrationOptions(
+            hold_radar_plane=args.hold_radar_plane,
+            initial=read_initial_poses(args.initial) if args.initial else None,
+        ),
     )
     ground = {name: ground_normal_angle(pts, result.T_body_sensor(name)) for name, pts in checks}
     verdict_lines(result.relative, console)

@@ -25,6 +25,10 @@ BOMB = "".join(
     for p, c in zip("abcdefgh", "bcdefghi")
 )
 BOMB = "a: &a [lol, lol, lol, lol, lol, lol, lol, lol, lol]\n" + BOMB  # 9^9 = 387 M strings
+# the same bomb as one value (for a key a reader accepts, so it gets past the key checks)
+BOMB_VALUE = "[&a [lol, lol, lol, lol, lol, lol, lol, lol, lol], " + ", ".join(
+    f"&{c} [" + ", ".join([f"*{p}"] * 9) + "]" for p, c in zip("abcdefgh", "bcdefghi")
+) + "]"
 
 
 @pytest.fixture(scope="module")
@@ -52,9 +56,16 @@ def _relative_calibration(dataset_dir: Path, tmp_path: Path, cli) -> Path:
 # YAML bombs and deep nesting, in every kind of YAML the CLI reads
 
 
-@pytest.mark.parametrize("doc", [BOMB, "a: &a [*a]\n", "[" * 5000 + "]" * 5000])
-def test_yaml_bomb_manifest(tmp_path, cli, refused, doc):
+@pytest.mark.parametrize("doc", [BOMB, "reference: BOMB\n", "reference: &a [*a]\n",
+                                 "[" * 5000 + "]" * 5000])
+def test_yaml_bomb_manifest(tmp_path, cli, refused, dataset_dir, doc):
     manifest = tmp_path / "rig.yaml"
+    for p in dataset_dir.iterdir():
+        (tmp_path / p.name).write_bytes(p.read_bytes())
+    valid = (dataset_dir / "rig.yaml").read_text()
+    if doc.startswith("reference:"):  # a valid manifest whose reference is the bomb
+        valid = "\n".join(ln for ln in valid.splitlines() if not ln.startswith("reference:"))
+        doc = valid + "\n" + doc.replace("BOMB", BOMB_VALUE)
     manifest.write_text(doc)
     out = tmp_path / "out"
     refused(cli("calibrate", manifest, "--out", out, memory_mb=700, seconds=30), "rig.yaml", code=1)

@@ -54,7 +54,7 @@ def test_no_command_prints_help(capsys):
 
 def test_calibrate_manifest_json(tmp_path, manifest, sim, capsys):
     out = tmp_path / "out"
-    code = run(["calibrate", str(manifest), "--mode", "fcpe", "--out", str(out), "--json"])
+    code = run(["calibrate", str(manifest), "--mode", "fcpe", "--out", str(out), "--json", "--plot"])
     captured = capsys.readouterr()
     assert code == 0, captured.err
     data = json.loads(captured.out)  # stdout is only the JSON
@@ -284,3 +284,12 @@ def test_pse_identity_noise_from_the_command_line(tmp_path, manifest, capsys):
                 "--no-plot", "--out", str(tmp_path / "o"), "--json"])
     data = json.loads(capsys.readouterr().out)
     assert code == 0 and data["mode"] == "pse" and data["noise_iterations"] == 0
+
+
+def test_calibrate_draws_the_plot_only_when_asked(tmp_path, manifest):
+    """calibration.png costs about a second (matplotlib); it is off the default path."""
+    assert run(["calibrate", str(manifest), "--mode", "fcpe", "--out", str(tmp_path / "a")]) == 0
+    assert not (tmp_path / "a" / "calibration.png").exists()
+    assert (tmp_path / "a" / "calibration.yaml").is_file()
+    assert run(["calibrate", str(manifest), "--mode", "fcpe", "--plot", "--out", str(tmp_path / "b")]) == 0
+    assert (tmp_path / "b" / "calibration.png").read_bytes().startswith(b"\x89PNG")

@@ -48,7 +48,11 @@ def add_parser(sub) -> None:
     )
     c.add_argument("--initial", metavar="FILE", help="initial guesses: a previous calibration.yaml")
     c.add_argument("--cv-folds", type=count(0, 1000), default=5, metavar="N", help="leave-boards-out folds (0 = off)")
-    c.add_argument("--no-plot", action="store_true", help="do not write calibration.png")
+    plot = c.add_mutually_exclusive_group()
+    plot.add_argument("--plot", action="store_true",
+                      help="also write calibration.png (all detections in the reference frame; "
+                      "about 1 s more)")
+    plot.add_argument("--no-plot", action="store_true", help="no calibration.png (the default)")
     c.add_argument(
         "--pse-noise", default="iterated", choices=["iterated", "identity"],
         help="PSE: per-sensor noise re-estimated until converged (default), or fixed at 1 "
@@ -105,7 +109,7 @@ def run(args, console) -> int:
         return not_written(console)
     with staged_folder(args.out) as stage:
         write_results(result, stage)
-        if not args.no_plot:
+        if args.plot:
             from rigcal.report.plot import plot_calibration
 
             plot_calibration(dataset, result, stage / "calibration.png")

@@ -75,10 +75,11 @@ def plot_calibration(
     drawn as an axis triad (x red, y green, z blue) with its name. The title gives the mode,
     the reference and the RMSE of every pair.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    # the object-oriented API on the Agg canvas: no pyplot, no global backend state
+    from matplotlib import rcParams
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.collections import LineCollection
+    from matplotlib.figure import Figure
 
     missing = [n for n in dataset.names if n not in result.sensors]
     if len(missing) == len(dataset.names):
@@ -89,9 +90,11 @@ def plot_calibration(
     for name in missing:
         log.warning("plot: sensor '%s' has no estimate in the result; not drawn", name)
 
-    fig, (ax_top, ax_side) = plt.subplots(1, 2, figsize=(13, 6.5))
-    try:
-        colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    fig = Figure(figsize=(13, 6.5))
+    FigureCanvasAgg(fig)
+    ax_top, ax_side = fig.subplots(1, 2)
+    if True:  # one figure per call, dropped on return (no pyplot registry to close)
+        colours = rcParams["axes.prop_cycle"].by_key()["color"]
         all_pts = []
         for i, det in enumerate(dataset.sensors):
             if det.name not in result.sensors:
@@ -122,20 +125,26 @@ def plot_calibration(
                         label=f"{det.name} outliers ({idx_out.size})",
                     )
                 for arc, style in ((arcs_in, "-"), (arcs_out, ":")):
-                    for one in arc:
-                        ax.plot(one[:, a], one[:, b], style, color=colour, lw=0.8, alpha=0.6)
+                    if len(arc):  # every elevation arc of the sensor as one artist
+                        ax.add_collection(LineCollection(
+                            arc[:, :, [a, b]], colors=colour, linestyles=style, lw=0.8, alpha=0.6,
+                        ))
         extent = np.concatenate([p for p in all_pts if p.size], axis=0)
         span = float(np.ptp(extent, axis=0).max()) if extent.shape[0] > 1 else 1.0
         triad = max(0.05 * span, 0.1)
-        for name, est in result.sensors.items():
-            T = np.asarray(est.T_reference_sensor, dtype=float)
-            origin = T[:3, 3]
-            for ax, (a, b) in ((ax_top, (0, 1)), (ax_side, (0, 2))):
+        for ax, (a, b) in ((ax_top, (0, 1)), (ax_side, (0, 2))):
+            segments, seg_colours = [], []
+            for name, est in result.sensors.items():
+                T = np.asarray(est.T_reference_sensor, dtype=float)
+                origin = T[:3, 3]
                 for axis, c in zip(range(3), ("tab:red", "tab:green", "tab:blue")):
                     tip = origin + triad * T[:3, axis]
-                    ax.plot([origin[a], tip[a]], [origin[b], tip[b]], color=c, lw=1.5)
+                    segments.append([(origin[a], origin[b]), (tip[a], tip[b])])
+                    seg_colours.append(c)
                 ax.annotate(name, (origin[a], origin[b]), textcoords="offset points",
                             xytext=(4, 4), fontsize=8)
+            ax.add_collection(LineCollection(segments, colors=seg_colours, lw=1.5))
+            ax.autoscale_view()
         ref = result.reference
         ax_top.set_title(f"top view (x, y) of {ref}")
         ax_top.set_xlabel("x [m]")
@@ -146,7 +155,7 @@ def plot_calibration(
         for ax in (ax_top, ax_side):
             ax.set_aspect("equal", adjustable="datalim")
             ax.grid(True, lw=0.4, alpha=0.5)
-        ax_top.legend(loc="best", fontsize=8)
+        ax_top.legend(loc="lower left", fontsize=8)  # "best" searches every artist: slow
         rmse = ", ".join(
             f"{pair} {1000.0 * v:.1f} mm" if math.isfinite(v) else f"{pair} n/a"
             for pair, v in result.rmse_m.items()
@@ -156,11 +165,9 @@ def plot_calibration(
             + (f"\nRMSE: {rmse}" if rmse else ""),
             fontsize=11,
         )
-        fig.tight_layout()
+        fig.subplots_adjust(left=0.06, right=0.985, bottom=0.08, top=0.87, wspace=0.18)
         buf = io.BytesIO()
         fig.savefig(buf, format="png", dpi=dpi)
-    finally:
-        plt.close(fig)
 
     from rigcal.io.atomic import atomic_write_bytes
 

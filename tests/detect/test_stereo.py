@@ -16,10 +16,17 @@ import pytest
 
 from rigcal.dataset import BoardGeometry
 from rigcal.detect.result import BoardDetection, DetectionFailure
-from rigcal.detect.stereo import StereoDetectorConfig, detect_board_stereo
+from rigcal.detect.stereo import StereoDetectorConfig, detect_board_stereo, detect_board_stereo_pair
 from rigcal.errors import ConfigError, InputError
 from rigcal.recording import PointCloudFrame, StereoFrame
-from rigcal.sensors.stereo import SgbmParams, StereoRig, disparity_from_pair, point_cloud_from_pair
+from rigcal.sensors.stereo import (
+    SgbmParams,
+    StereoRig,
+    disparity_from_pair,
+    downsample_pair,
+    point_cloud_from_pair,
+    point_cloud_in_window,
+)
 from rigcal.targets.circle_board import board_centres
 
 RIG = StereoRig(fx=1000.0, fy=1000.0, cx=639.5, cy=399.5, baseline_m=0.2, width=1280, height=800)
@@ -147,14 +154,20 @@ def _random_scene(rng, k, distance):
 
 
 @pytest.fixture(scope="module")
-def near_boards():
-    """Six seeded boards at 3-5 m with their SGBM clouds (rendering is the slow part)."""
+def near_pairs():
+    """Six seeded boards at 3-5 m with their rendered pairs (rendering is the slow part)."""
     rng = np.random.default_rng(77)
     out = []
     for k, dist in enumerate([3.0, 3.5, 4.0, 4.5, 5.0, 5.0]):
         scene = _random_scene(rng, k, dist)
-        out.append((scene, point_cloud_from_pair(scene.pair(), RIG), dist))
+        out.append((scene, scene.pair(), dist))
     return out
+
+
+@pytest.fixture(scope="module")
+def near_boards(near_pairs):
+    """The boards of ``near_pairs`` with their full-image SGBM clouds."""
+    return [(scene, point_cloud_from_pair(pair, RIG), dist) for scene, pair, dist in near_pairs]
 
 
 # ----------------------------------------------------------------------------- the point cloud
@@ -245,6 +258,65 @@ def test_at_7_m_it_still_detects():
     e = errors_m(det, scene.truth)
     print(f"\nstereo at 7 m: centre errors {np.round(e * 1000, 1)} mm")
     assert np.max(e) < 0.03
+
+
+def test_pair_detector_matches_only_around_the_board_as_accurately(near_pairs, near_boards):
+    errs_pair, errs_full, fractions = [], [], []
+    for (scene, pair, dist), (_, cloud, _) in zip(near_pairs, near_boards):
+        det = detect_board_stereo_pair(pair, RIG)
+        assert isinstance(det, BoardDetection), (dist, det)
+        assert det.quality["organised"] == 1.0
+        fractions.append(det.quality["window_fraction"])
+        assert_order(det, scene.truth)
+        errs_pair.extend(errors_m(det, scene.truth))
+        errs_full.extend(errors_m(detect_board_stereo(cloud), scene.truth))
+    med, med_full = float(np.median(errs_pair)), float(np.median(errs_full))
+    print(f"\nstereo pair (windowed SGBM) 3-5 m: median centre error {med * 1000:.1f} mm, max "
+          f"{max(errs_pair) * 1000:.1f} mm (whole image: {med_full * 1000:.1f} / "
+          f"{max(errs_full) * 1000:.1f} mm)")
+    assert med <= 0.01 and max(errs_pair) <= 0.025
+    assert med <= med_full + 0.002
+    # most pairs are matched in a window around the board (a board the coarse stage misses
+    # is matched over the whole image: slower, as accurate)
+    print(f"matched fractions of the image: {np.round(fractions, 3).tolist()}")
+    assert sum(f < 0.35 for f in fractions) >= 5, fractions
+
+
+def test_pair_detector_falls_back_to_the_whole_image():
+    scene = Scene(700, 7.0, lateral=-0.4, yaw=math.radians(20), tilt=math.radians(8))
+    pair = scene.pair()
+    # coarse_factor 1: no coarse stage, exactly detect_board_stereo on the whole image
+    det = detect_board_stereo_pair(pair, RIG, coarse_factor=1)
+    ref = detect_board_stereo(point_cloud_from_pair(pair, RIG))
+    assert isinstance(det, BoardDetection) and det.quality["window_fraction"] == 1.0
+    assert np.array_equal(det.points, ref.points)
+    wall = detect_board_stereo_pair(Scene(5, 4.0, with_board=False).pair(), RIG)
+    assert isinstance(wall, DetectionFailure) and wall.reason == "no_board_plane", wall
+
+
+def test_window_cloud_equals_the_whole_image_cloud_inside(near_pairs):
+    _, pair, _ = near_pairs[0]
+    params = SgbmParams(num_disparities=96)
+    whole = point_cloud_from_pair(pair, RIG, params).points_xyz.reshape(RIG.height, RIG.width, 3)
+    win = point_cloud_in_window(pair, RIG, (500, 200, 800, 500), params)
+    assert win.organized_shape == (300, 300)
+    P = win.points_xyz.reshape(300, 300, 3)
+    ref = whole[200:500, 500:800]
+    both = np.isfinite(P[..., 2]) & np.isfinite(ref[..., 2])
+    assert both.mean() > 0.8
+    # SGBM's paths are cut at the window's edges: most disparities agree to a pixel fraction
+    dz = np.abs(P[..., 2][both] - ref[..., 2][both])
+    assert np.median(dz) < 1e-3
+    # x, y follow the full image's pixel coordinates
+    assert np.allclose(P[both][:, 0] * RIG.fx / P[both][:, 2] + RIG.cx,
+                       np.nonzero(both)[1] + 500)
+    small, rig4 = downsample_pair(pair, RIG, 4)
+    assert small.left.shape == (200, 320) and rig4.size_wh == (320, 200)
+    assert rig4.fx == RIG.fx / 4 and rig4.cx == pytest.approx((RIG.cx + 0.5) / 4 - 0.5)
+    with pytest.raises(ConfigError, match="integer >= 1"):
+        downsample_pair(pair, RIG, 0)
+    with pytest.raises(InputError, match="empty window"):
+        point_cloud_in_window(pair, RIG, (900, 0, 800, 10))
 
 
 def test_failures_empty_no_board_not_square():

@@ -73,6 +73,17 @@ def test_parent_is_a_file(tmp_path):
         atomic_write_text(tmp_path / "file" / "out.txt", "x")
 
 
+def test_bytes_in_parts(tmp_path):
+    import numpy as np
+
+    arr = np.arange(5, dtype="<u2")
+    path = atomic_write_bytes(tmp_path / "p.bin", [b"head", bytearray(b"-"), arr.data])
+    assert path.read_bytes() == b"head-" + arr.tobytes()
+    with pytest.raises(TypeError, match="must be bytes, got str"):
+        atomic_write_bytes(tmp_path / "q.bin", [b"ok", "text"])  # type: ignore[list-item]
+    assert not (tmp_path / "q.bin").exists()
+
+
 def test_wrong_types():
     with pytest.raises(TypeError, match="must be str"):
         atomic_write_text("x", b"bytes")  # type: ignore[arg-type]

@@ -100,6 +100,57 @@ def test_lzf_corrupt_streams_raise():
         lzf_decompress(b"\x02abc", 4)
 
 
+def test_lzf_refuses_an_impossible_announced_size_before_decompressing():
+    # 3-byte tokens yield at most 264 bytes: 31 bytes cannot become 1 MB
+    with pytest.raises(InputError, match=r"b\.pcd: LZF data of 31 bytes cannot decompress to "
+                                         r"the announced 1000000 bytes"):
+        lzf_decompress(b"\x00a" + b"\xe0\xff\x00" * 9 + b"\x00a", 1_000_000, "b.pcd")
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_lzf_bomb_stops_at_the_announced_size(monkeypatch, compiled):
+    from rigcal.io import pointcloud
+
+    if compiled and pointcloud._clzf is None:
+        pytest.skip("python-neo-lzf not installed")
+    if not compiled:
+        monkeypatch.setattr(pointcloud, "_clzf", None)
+    bomb = b"\x00A" + b"\xe0\xff\x00" * 1333  # ~350 kB from 4 kB
+    with pytest.raises(InputError, match="LZF data decompress to more than 12 bytes"):
+        lzf_decompress(bomb, 12, "x.pcd")
+    with pytest.raises(InputError, match="x.pcd: corrupt LZF data"):
+        lzf_decompress(b"\x80\x02" + bytes(10), 12, "x.pcd")  # reference before the start
+    with pytest.raises(InputError, match="decompress to 3 bytes, expected 4"):
+        lzf_decompress(b"\x02abc", 4)
+
+
+def test_compiled_and_pure_python_lzf_read_each_other(monkeypatch):
+    from rigcal.io import pointcloud
+
+    if pointcloud._clzf is None:
+        pytest.skip("python-neo-lzf not installed")
+    rng = np.random.default_rng(5)
+    data = (np.repeat(rng.normal(size=2000).astype(np.float32), 3).tobytes()
+            + rng.integers(0, 256, 3000, dtype=np.uint8).tobytes() + bytes(5000))
+    compiled = lzf_compress(data)
+    with monkeypatch.context() as m:
+        m.setattr(pointcloud, "_clzf", None)
+        python = lzf_compress(data)
+        assert lzf_decompress(compiled, len(data)) == data
+    assert lzf_decompress(python, len(data)) == data
+    # incompressible data still make a valid (slightly larger) block
+    noise = rng.integers(0, 256, 10000, dtype=np.uint8).tobytes()
+    assert lzf_decompress(lzf_compress(noise), len(noise)) == noise
+
+
+def test_pcd_round_trip_without_the_compiled_lzf(monkeypatch):
+    from rigcal.io import pointcloud
+
+    monkeypatch.setattr(pointcloud, "_clzf", None)
+    cloud = make_cloud(seed=9)
+    assert_same(cloud, parse_pcd_bytes(pcd_bytes(cloud, "binary_compressed"), "m"))
+
+
 # -- PCD -------------------------------------------------------------------------------------
 
 
@@ -186,6 +237,65 @@ def test_pcd_ascii_hand_made_organised_with_nan_and_comments():
     assert np.isnan(cloud.points_xyz[1]).all()
     assert cloud.points_xyz[2].tolist() == [-1.5, 2500.0, 0.0]
     assert cloud.fields["ring"].tolist() == [0, 1, 2, 65535]
+
+
+def test_ring_is_written_as_uint16_and_read_from_any_integer_type():
+    n = 5
+    pts = np.arange(3 * n, dtype=float).reshape(n, 3)
+    cloud = PointCloudFrame("l", 0, pts, {"ring": np.arange(n, dtype=np.int32)})
+    for data in ("ascii", "binary", "binary_compressed"):
+        raw = pcd_bytes(cloud, data)
+        header = raw.split(b"DATA")[0].decode()
+        assert "FIELDS x y z ring" in header and "SIZE 4 4 4 2" in header
+        assert "TYPE F F F U" in header
+        back = parse_pcd_bytes(raw, "m")
+        assert back.fields["ring"].dtype == np.uint16
+        assert back.fields["ring"].tolist() == list(range(n))
+    assert "property ushort ring" in ply_bytes(cloud).split(b"end_header")[0].decode()
+    # a file with an INT32 ring (what rigcal wrote before) reads as uint16 too
+    for typ, dt in (("I 4", "<i4"), ("U 4", "<u4"), ("I 2", "<i2"), ("U 1", "<u1")):
+        t, size = typ.split()
+        rec = np.zeros(n, [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("ring", dt)])
+        rec["ring"] = np.arange(n)
+        head = pcd_header("x y z ring", f"4 4 4 {size}", f"F F F {t}", "1 1 1 1", n, "binary")
+        back = parse_pcd_bytes(head + rec.tobytes(), "m")
+        assert back.fields["ring"].dtype == np.uint16, typ
+        assert back.fields["ring"].tolist() == list(range(n))
+    # values that do not fit in uint16 keep their type, on writing and reading
+    odd = PointCloudFrame("l", 0, pts, {"ring": np.array([-1, 0, 1, 2, 70000], np.int32)})
+    back = parse_pcd_bytes(pcd_bytes(odd, "binary"), "m")
+    assert back.fields["ring"].dtype == np.int32
+    assert back.fields["ring"].tolist() == [-1, 0, 1, 2, 70000]
+
+
+@pytest.mark.parametrize("newline", [b"\n", b"\r\n", b"\r"])
+def test_pcd_ascii_fast_parser_matches_the_line_by_line_one(monkeypatch, newline):
+    from rigcal.io import pointcloud
+
+    cloud = make_cloud(seed=8, n=300)
+    head, body = pcd_bytes(cloud, "ascii").split(b"DATA ascii\n")
+    lines = body.split(b"\n")
+    # blank lines, extra spaces and lines past POINTS (ignored) as PCL-ish writers leave them
+    body = newline.join(lines[:5] + [b"", b"   "] + [b"  " + ln + b" \t" for ln in lines[5:]]
+                        + [b"1 2 3", b""])
+    data = head + b"DATA ascii\n" + body
+    fast = parse_pcd_bytes(data, "m")
+    assert_same(cloud, fast)
+    monkeypatch.setattr(pointcloud, "_ascii_table", lambda *a: None)
+    slow = parse_pcd_bytes(data, "m")
+    assert_same(fast, slow)
+
+
+def test_ascii_values_that_underflow_float32_become_zero():
+    head = pcd_header("x y z i", "4 4 4 4", "F F F F", "1 1 1 1", 2, "ascii")
+    with np.errstate(all="raise"):
+        cloud = parse_pcd_bytes(head + b"1e-320 1 2 1e-50\n0 0 0 0\n", "m")
+    assert cloud.points_xyz[0].tolist() == [0.0, 1.0, 2.0]
+    assert cloud.fields["i"][0] == 0.0
+    ply = (b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\n"
+           b"property float z\nend_header\n1e-320 1 2\n")
+    with np.errstate(all="raise"):
+        assert parse_ply_bytes(ply, "m").points_xyz.tolist() == [[0.0, 1.0, 2.0]]
 
 
 def test_pcd_missing_count_line_means_one():

@@ -88,7 +88,8 @@ def build_detector(setup: SensorSetup, rig: DetectionRig, recording: RecordingLi
     cfg = _config(StereoDetectorConfig, setup.detector, where)
     if setup.input == "stereo_cloud":
         return lambda f: detect_board_stereo(f, board, cfg)
-    from rigcal.sensors.stereo import StereoRig, point_cloud_from_pair
+    from rigcal.detect.stereo import detect_board_stereo_pair
+    from rigcal.sensors.stereo import StereoRig
 
     st = setup.stereo
     stereo_rig = None
@@ -102,7 +103,8 @@ def build_detector(setup: SensorSetup, rig: DetectionRig, recording: RecordingLi
                 fx=st["fx"], fy=st["fy"], cx=st["cx"], cy=st["cy"], baseline_m=st["baseline_m"],
                 width=w, height=h,
             )
-        return detect_board_stereo(point_cloud_from_pair(f, stereo_rig), board, cfg)
+        # SGBM at full resolution only around the board (a coarse pass finds it)
+        return detect_board_stereo_pair(f, stereo_rig, board, cfg)
 
     return detect_pair
 

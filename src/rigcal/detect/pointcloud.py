@@ -524,8 +524,9 @@ def _vote_square(edges: np.ndarray, hp: HoleParams) -> tuple[np.ndarray, float, 
     lo = edges.min(axis=0) - margin
     size = np.ceil((edges.max(axis=0) + margin - lo) / cell).astype(np.int64) + 1
     cand = edges[:, None, None, :] - shifts[None]  # (M, T, 4F, 2)
+    # no clipping needed: every shift is at most spacing / sqrt(2) + radius long, so each
+    # candidate lies at least 3 cells inside the grid's margin
     ij = np.floor((cand - lo) / cell).astype(np.int64)
-    ij = np.clip(ij, 0, size - 1)
     t_idx = np.arange(len(thetas))[None, :, None]
     flat = (t_idx * size[0] + ij[..., 0]) * size[1] + ij[..., 1]
     acc = np.bincount(flat.reshape(-1), minlength=len(thetas) * size[0] * size[1]).astype(float)

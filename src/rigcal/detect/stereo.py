@@ -29,6 +29,7 @@ Failure reasons: ``no_points_in_roi``, ``no_board_plane``, ``too_few_edge_points
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import ClassVar
@@ -60,9 +61,9 @@ from rigcal.geometry.fitting import (
     plane_basis,
     to_plane_2d,
 )
-from rigcal.recording import PointCloudFrame
+from rigcal.recording import PointCloudFrame, StereoFrame
 
-__all__ = ["StereoDetectorConfig", "detect_board_stereo"]
+__all__ = ["StereoDetectorConfig", "detect_board_stereo", "detect_board_stereo_pair"]
 
 
 @dataclass(frozen=True)
@@ -203,6 +204,24 @@ def detect_board_stereo(
     def fail(reason: str, detail: str) -> DetectionFailure:
         return DetectionFailure(frame.sensor, frame.t_ns, reason, detail)
 
+    seg = _segment(frame, board, cfg)
+    if isinstance(seg, StepFailed):
+        return fail(seg.reason, seg.detail)
+    pts, usable, idx, cands, up, rng = seg
+    hp = HoleParams.from_config(board, cfg)
+    failures: list[StepFailed] = []
+    for cand in cands[: cfg.max_board_candidates]:
+        try:
+            return _detect_on_candidate(frame, pts, usable, idx[cand.indices], cand, up, hp, cfg,
+                                        rng)
+        except StepFailed as exc:
+            failures.append(exc)
+    return fail(failures[0].reason, failures[0].detail)
+
+
+def _segment(frame: PointCloudFrame, board: BoardGeometry, cfg: StereoDetectorConfig):
+    """Steps 1-2 of the module docstring: (points, usable mask, indices of the segmented
+    points, board candidates over them, up axis, rng), or the StepFailed that stops there."""
     pts = frame.points_xyz
     n_all = pts.shape[0]
     lo, hi = check_box(cfg.roi_min_xyz, cfg.roi_max_xyz, "stereo detector")
@@ -214,7 +233,7 @@ def detect_board_stereo(
         usable &= box_mask(pts, lo, hi)
     n_use = int(usable.sum())
     if n_use < cfg.min_board_points:
-        return fail(
+        return StepFailed(
             "no_points_in_roi",
             f"{n_use} of {n_all} points are finite, within {cfg.min_range_m}-{cfg.max_range_m} m"
             + (" and in the ROI" if lo is not None else "") + f"; need {cfg.min_board_points}",
@@ -249,15 +268,8 @@ def detect_board_stereo(
             allow_partial=cfg.allow_partial_board,
         )
     except StepFailed as exc:
-        return fail(exc.reason, exc.detail)
-    hp = HoleParams.from_config(board, cfg)
-    failures: list[StepFailed] = []
-    for seg in cands[: cfg.max_board_candidates]:
-        try:
-            return _detect_on_candidate(frame, pts, usable, idx[seg.indices], seg, up, hp, cfg, rng)
-        except StepFailed as exc:
-            failures.append(exc)
-    return fail(failures[0].reason, failures[0].detail)
+        return exc
+    return pts, usable, idx, cands, up, rng
 
 
 def _detect_on_candidate(
@@ -389,3 +401,94 @@ def _unorganised_edges(pts, usable, seed_idx, normal, d, hp: HoleParams, cfg):
     edges = from_plane_2d(uv_e, origin, basis_tmp)
     info = {"plane": (normal, d), "plane_rms_m": rms, "hole_areas_cells": areas, "cell_m": cell}
     return edges, plate_idx, info
+
+
+# ----------------------------------------------------------------------------- from a pair
+
+
+def detect_board_stereo_pair(
+    frame: StereoFrame,
+    rig,
+    board: BoardGeometry = BoardGeometry(),
+    config: StereoDetectorConfig = StereoDetectorConfig(),
+    sgbm=None,
+    *,
+    coarse_factor: int | None = None,
+    margin_px: int = 32,
+) -> DetectionResult:
+    """:func:`detect_board_stereo` on a rectified pair (``rig``: its
+    :class:`~rigcal.sensors.stereo.StereoRig`), matching at full resolution only where the
+    board can be.
+
+    1. SGBM on the pair shrunk ``coarse_factor`` times (default: to about 640 px wide; at 4x,
+       1/16 of the pixels and 1/4 of the disparities) and the detector's segmentation (ground removal, clusters with a plane of
+       the board's size) on that coarse cloud: the board candidates and how far they are;
+    2. for each candidate (best first, at most ``max_board_candidates``): SGBM at full
+       resolution in the window around its points (plus ``margin_px``), searching disparities
+       from ``sgbm.min_disparity`` up to the candidate's nearest point's disparity plus 25 % and
+       16 px (never more than ``sgbm.num_disparities``; the background seen through the holes
+       has smaller disparities and stays in range), then the whole detector on that window's
+       organised cloud: the fit is the full-resolution one;
+    3. if no window gives a detection, the whole pair is matched at full resolution as
+       :func:`~rigcal.sensors.stereo.point_cloud_from_pair` does and detected there (the
+       result, or failure, is then exactly that of :func:`detect_board_stereo`).
+
+    ``quality`` gets ``window_fraction``: the fraction of the image matched at full
+    resolution."""
+    from rigcal.sensors.stereo import SgbmParams, point_cloud_from_pair, point_cloud_in_window
+
+    params = SgbmParams() if sgbm is None else sgbm
+    if coarse_factor is None:
+        coarse_factor = max(1, int(rig.width) // 640)
+    windows = _board_windows(frame, rig, board, config, params, coarse_factor, margin_px) \
+        if coarse_factor > 1 else []
+    for window, d_max in windows:
+        span = int(math.ceil((1.25 * d_max + 16 - params.min_disparity) / 16)) * 16
+        fine = dataclasses.replace(params, num_disparities=max(16, min(span,
+                                                                       params.num_disparities)))
+        det = detect_board_stereo(point_cloud_in_window(frame, rig, window, fine), board, config)
+        if isinstance(det, BoardDetection):
+            u0, v0, u1, v1 = window
+            fraction = (u1 - u0) * (v1 - v0) / float(rig.width * rig.height)
+            return BoardDetection(det.sensor, det.t_ns, det.points,
+                                  {**det.quality, "window_fraction": fraction})
+    det = detect_board_stereo(point_cloud_from_pair(frame, rig, params), board, config)
+    if isinstance(det, BoardDetection):
+        det = BoardDetection(det.sensor, det.t_ns, det.points,
+                             {**det.quality, "window_fraction": 1.0})
+    return det
+
+
+def _board_windows(frame, rig, board, config, params, factor, margin_px
+                   ) -> list[tuple[tuple[int, int, int, int], float]]:
+    """Full-resolution windows (u0, v0, u1, v1) around the board candidates of the coarse
+    cloud, each with the candidate's largest disparity [px] (best candidate first)."""
+    from rigcal.sensors.stereo import downsample_pair, point_cloud_from_pair
+
+    small, small_rig = downsample_pair(frame, rig, factor)
+    coarse_params = dataclasses.replace(
+        params, min_disparity=params.min_disparity // factor,
+        num_disparities=max(16, int(math.ceil(params.num_disparities / factor / 16)) * 16),
+        speckle_window_size=max(1, params.speckle_window_size // (factor * factor)),
+    )
+    cloud = point_cloud_from_pair(small, small_rig, coarse_params)
+    coarse_cfg = dataclasses.replace(
+        config, min_board_points=max(10, config.min_board_points // (factor * factor)))
+    seg = _segment(cloud, board, coarse_cfg)
+    if isinstance(seg, StepFailed):
+        return []
+    pts, _, idx, cands, _, _ = seg
+    h, w = cloud.organized_shape
+    out = []
+    for cand in cands[: config.max_board_candidates]:
+        members = idx[cand.indices]
+        z_min = float(np.min(pts[members, 2]))
+        if not z_min > 0:
+            continue
+        rows, cols = np.divmod(members, w)
+        window = (max(0, int(cols.min()) * factor - margin_px),
+                  max(0, int(rows.min()) * factor - margin_px),
+                  min(rig.width, (int(cols.max()) + 1) * factor + margin_px),
+                  min(rig.height, (int(rows.max()) + 1) * factor + margin_px))
+        out.append((window, rig.fx * rig.baseline_m / z_min))
+    return out

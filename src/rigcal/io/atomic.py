@@ -22,11 +22,20 @@ from rigcal.errors import InputError
 from rigcal.io.limits import path_stat
 
 
-def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> Path:
-    """Write ``data`` to ``path`` atomically; returns the path. OS errors raise InputError."""
+_BUFFERS = (bytes, bytearray, memoryview)
+
+
+def atomic_write_bytes(path: str | os.PathLike[str],
+                       data: bytes | bytearray | memoryview | list | tuple) -> Path:
+    """Write ``data`` to ``path`` atomically; returns the path. OS errors raise InputError.
+
+    ``data`` may be a list or tuple of byte buffers, written one after the other (a header and
+    a large array's memory without joining them first)."""
     target = Path(path)
-    if not isinstance(data, (bytes, bytearray, memoryview)):
-        raise TypeError(f"atomic_write_bytes: data must be bytes, got {type(data).__name__}")
+    parts = list(data) if isinstance(data, (list, tuple)) else [data]
+    for part in parts:
+        if not isinstance(part, _BUFFERS):
+            raise TypeError(f"atomic_write_bytes: data must be bytes, got {type(part).__name__}")
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -44,7 +53,8 @@ def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> Path:
         raise InputError(f"{target}: cannot write file: {exc.strerror or exc}") from exc
     try:
         with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
+            for part in parts:
+                fh.write(part)
             fh.flush()
             os.fsync(fh.fileno())
         if mode is not None:

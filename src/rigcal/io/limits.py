@@ -181,6 +181,11 @@ def check_points(points: Any, source: str, what: str = "point") -> np.ndarray:
     the first bad point and axis."""
     arr = np.asarray(points, dtype=float)
     limit = MAX_ABS["m"]
+    if arr.size and arr.ndim:
+        # fast path: fmin/fmax skip NaN (NaN only if every entry is NaN) and need no temporaries
+        lo, hi = np.fmin.reduce(arr, axis=None), np.fmax.reduce(arr, axis=None)
+        if (math.isnan(lo) and math.isnan(hi)) or (-limit <= lo and hi <= limit):
+            return arr
     with np.errstate(invalid="ignore"):
         bad = ~(np.abs(arr) <= limit) & ~np.isnan(arr)
     if bad.any():

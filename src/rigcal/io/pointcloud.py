@@ -23,11 +23,23 @@ Parsers take bytes and return values (:func:`parse_pcd_bytes`, :func:`parse_ply_
 :func:`npy_bytes`) and write them atomically. Every problem raises
 :class:`rigcal.errors.InputError` naming the file (``source``).
 
-LZF (used by ``binary_compressed``) is implemented here in pure Python: a stream of tokens, each
-starting with a control byte ``c``: ``c < 32`` is a literal run of ``c + 1`` bytes that follow;
-otherwise ``c >> 5`` is a length code L (7 means "add the next byte") and the back reference
-copies ``L + 2`` bytes from ``((c & 31) << 8 | next byte) + 1`` bytes back in the output (the
-copy may overlap itself).
+LZF (used by ``binary_compressed``) is a stream of tokens, each starting with a control byte
+``c``: ``c < 32`` is a literal run of ``c + 1`` bytes that follow; otherwise ``c >> 5`` is a
+length code L (7 means "add the next byte") and the back reference copies ``L + 2`` bytes from
+``((c & 31) << 8 | next byte) + 1`` bytes back in the output (the copy may overlap itself). A
+token of 3 bytes yields at most 264, so a block of ``m`` bytes decompresses to at most ``88 m``
+bytes: a header announcing more is refused before anything is allocated, and decompression never
+writes past the announced size. The compiled liblzf of the ``python-neo-lzf`` package (a
+dependency) does the work; without it a pure-Python codec is used (the same format, about a
+second per megabyte).
+
+ASCII data are parsed by NumPy's ``loadtxt`` when they are well formed; any problem (a bad token,
+a short line, a value out of the field's range) is diagnosed by a line-by-line parser that names
+the point and the field.
+
+The ``ring`` field (the laser index of a spinning lidar) is written as ``U 2`` (uint16, as the
+Velodyne and Ouster drivers publish it) and read into uint16 whatever integer type a file uses,
+when its values fit (0..65535; otherwise it keeps the file's type).
 """
 
 from __future__ import annotations
@@ -37,6 +49,7 @@ import math
 import os
 import re
 import struct
+import warnings
 from pathlib import Path
 from typing import Iterable, Sequence
 
@@ -46,6 +59,11 @@ from rigcal.errors import InputError
 from rigcal.io.limits import MAX_ELEMENTS, check_count, check_finite, check_points, read_limited
 from rigcal.io.atomic import atomic_write_bytes
 from rigcal.recording import PointCloudFrame, RadarFrame
+
+try:  # python-neo-lzf: liblzf, compiled
+    import lzf as _clzf
+except ImportError:  # pragma: no cover - the package is a dependency
+    _clzf = None
 
 __all__ = [
     "DEFAULT_RCS_FIELDS",
@@ -77,6 +95,12 @@ _PCD_KEYS = ("VERSION", "FIELDS", "SIZE", "TYPE", "COUNT", "WIDTH", "HEIGHT", "V
 _PCD_TYPES = {("F", 4): "f4", ("F", 8): "f8", ("I", 1): "i1", ("I", 2): "i2", ("I", 4): "i4",
               ("I", 8): "i8", ("U", 1): "u1", ("U", 2): "u2", ("U", 4): "u4", ("U", 8): "u8"}
 _MAX_HEADER_BYTES = 1 << 16
+_RING = "ring"
+
+LZF_BACKEND = "liblzf (python-neo-lzf)" if _clzf is not None else "pure Python"
+"""Which LZF codec :func:`lzf_compress` / :func:`lzf_decompress` use."""
+
+_LZF_MAX_RATIO = 88  # a 3-byte back reference yields at most 264 bytes
 
 
 # --------------------------------------------------------------------------------------------
@@ -85,12 +109,21 @@ _MAX_HEADER_BYTES = 1 << 16
 
 def lzf_decompress(data: bytes | bytearray | memoryview, expected_size: int | None = None,
                    source: str = "LZF data") -> bytes:
-    """Decompress one LZF block; ``expected_size`` (if given) must match the output length.
+    """Decompress one LZF block; ``expected_size`` (if given) must match the output length, and
+    no more than it is ever produced (a "bomb" stops there).
 
     Corrupt input (a reference before the start, a token cut short) raises InputError naming
-    ``source``."""
+    ``source``. With ``expected_size`` the compiled codec is used when installed."""
     src = bytes(data)
     n = len(src)
+    if expected_size is not None:
+        if expected_size > _LZF_MAX_RATIO * n:
+            raise InputError(
+                f"{source}: LZF data of {n} bytes cannot decompress to the announced "
+                f"{expected_size} bytes (at most {_LZF_MAX_RATIO} x {n})"
+            )
+        if _clzf is not None:
+            return _lzf_decompress_compiled(src, expected_size, source)
     out = bytearray()
     i = 0
     while i < n:
@@ -165,12 +198,45 @@ def _match_length(data: bytes, a: int, b: int, limit: int) -> int:
     return length
 
 
-def lzf_compress(data: bytes | bytearray | memoryview) -> bytes:
-    """Compress ``data`` into one LZF block (greedy matching over a hash of 3-byte keys).
+def _lzf_decompress_compiled(src: bytes, expected_size: int, source: str) -> bytes:
+    if expected_size == 0 or not src:
+        if src or expected_size:
+            got = "more than 0 bytes" if src else "0 bytes"
+            raise InputError(f"{source}: LZF data decompress to {got}, expected {expected_size}")
+        return b""
+    try:
+        out = _clzf.decompress(src, expected_size)
+    except ValueError:
+        raise InputError(
+            f"{source}: corrupt LZF data (a back reference before the start of the output or a "
+            "token cut short)"
+        ) from None
+    except MemoryError:
+        raise InputError(
+            f"{source}: not enough memory to decompress the announced {expected_size} bytes"
+        ) from None
+    if out is None:  # liblzf stops where the output would pass expected_size
+        raise InputError(
+            f"{source}: LZF data decompress to more than {expected_size} bytes, expected "
+            f"{expected_size}"
+        )
+    if len(out) != expected_size:
+        raise InputError(
+            f"{source}: LZF data decompress to {len(out)} bytes, expected {expected_size}"
+        )
+    return out
 
-    Pure Python: about a second per megabyte of incompressible data."""
+
+def lzf_compress(data: bytes | bytearray | memoryview) -> bytes:
+    """Compress ``data`` into one LZF block (liblzf when installed; otherwise greedy matching
+    over a hash of 3-byte keys in pure Python, about a second per megabyte)."""
     src = bytes(data)
     n = len(src)
+    if _clzf is not None and n:
+        # incompressible data grow by at most 1 byte in 32 (a literal run's control byte)
+        out = _clzf.compress(src, n + n // 16 + 64)
+        if out is not None:
+            return out
     out = bytearray()
     table: dict[bytes, int] = {}
     literal_start = 0
@@ -227,21 +293,35 @@ def _frame_from_columns(columns: Sequence[tuple[str, np.ndarray]], source: str, 
     for a in _XYZ:
         if named[a].dtype.kind not in "iuf":
             raise InputError(f"{source}: field '{a}' has dtype {named[a].dtype}, expected numbers")
-    points = check_points(np.stack([named[a].astype(np.float64) for a in _XYZ], axis=1), source)
+    xyz = np.empty((named["x"].shape[0], 3))
+    for k, a in enumerate(_XYZ):
+        xyz[:, k] = named[a]
+    points = check_points(xyz, source)
     fields = {}
     for name, col in named.items():
         if name in _XYZ:
             continue
+        if name == _RING:
+            col = _ring_u16(col)
         fields[name] = np.ascontiguousarray(col, dtype=col.dtype.newbyteorder("="))
     return PointCloudFrame(sensor=sensor, t_ns=t_ns, points_xyz=points, fields=fields,
                            organized_shape=organized_shape, frame_id=frame_id)
+
+
+def _ring_u16(col: np.ndarray) -> np.ndarray:
+    """An integer ``ring`` column as uint16 if its values fit (else unchanged)."""
+    if col.ndim != 1 or col.dtype.kind not in "iu" or col.dtype == np.dtype("<u2") or (
+        col.size and (int(col.min()) < 0 or int(col.max()) > 0xFFFF)
+    ):
+        return col
+    return col.astype("<u2")
 
 
 def _columns_of(frame: PointCloudFrame, xyz_dtype: np.dtype, source: str
                 ) -> list[tuple[str, np.ndarray]]:
     """x, y, z (as ``xyz_dtype``) then the frame's fields, each (N,), checked for writing."""
     pts = frame.points_xyz
-    cols = [(a, pts[:, k].astype(xyz_dtype)) for k, a in enumerate(_XYZ)]
+    cols = [(a, pts[:, k].astype(xyz_dtype, copy=False)) for k, a in enumerate(_XYZ)]
     for name, values in frame.fields.items():
         if name in _XYZ:
             raise InputError(f"{source}: field '{name}' clashes with a coordinate")
@@ -259,7 +339,9 @@ def _columns_of(frame: PointCloudFrame, xyz_dtype: np.dtype, source: str
                 f"{source}: field '{name}' has dtype {arr.dtype}; expected int8..int64, "
                 "uint8..uint64, float32 or float64"
             )
-        cols.append((name, arr.astype(arr.dtype.newbyteorder("<"))))
+        if name == _RING:
+            arr = _ring_u16(arr)
+        cols.append((name, arr.astype(arr.dtype.newbyteorder("<"), copy=False)))
     return cols
 
 
@@ -401,7 +483,7 @@ def parse_pcd_bytes(data: bytes, source: str, sensor: str = "", t_ns: int = 0,
     data = bytes(data)
     header, offset = _pcd_header(data, source)
     names, dtypes, counts, width, height, n, kind = _pcd_layout(header, source)
-    body = data[offset:]
+    body = memoryview(data)[offset:]  # no copy
     point_size = sum(dt.itemsize * c for dt, c in zip(dtypes, counts))
     columns: list[tuple[str, np.ndarray]] = []
     if kind == "binary":
@@ -443,6 +525,22 @@ def parse_pcd_bytes(data: bytes, source: str, sensor: str = "", t_ns: int = 0,
             columns.append((name, col if c == 1 else col.reshape(n, c)))
             pos += size
     else:  # ascii
+        body = bytes(body)
+        wide = [_wide_dtype(dt) for dt, c in zip(dtypes, counts) for _ in range(c)]
+        table = _ascii_table(body, n, wide)
+        if table is not None:
+            col0 = 0
+            for name, dt, c in zip(names, dtypes, counts):
+                block = np.column_stack([table[f"f{col0 + j}"] for j in range(c)])
+                values = _narrow(block, dt)
+                if values is None:  # out of the field's range: the slow path names the value
+                    break
+                col0 += c
+                columns.append((name, values[:, 0] if c == 1 else values))
+            else:
+                organized = (height, width) if height > 1 else None
+                return _frame_from_columns(columns, source, sensor, t_ns, organized, frame_id)
+            columns = []
         try:
             text = body.decode("ascii")
         except UnicodeDecodeError as exc:
@@ -471,6 +569,52 @@ def parse_pcd_bytes(data: bytes, source: str, sensor: str = "", t_ns: int = 0,
     return _frame_from_columns(columns, source, sensor, t_ns, organized, frame_id)
 
 
+def _wide_dtype(dt: np.dtype) -> np.dtype:
+    """The dtype ASCII values of ``dt`` are parsed into before their range is checked."""
+    if dt.kind == "f":
+        return np.dtype(np.float64)
+    return np.dtype(np.uint64 if dt == np.dtype("<u8") else np.int64)
+
+
+def _ascii_table(body: bytes, n: int, wide: Sequence[np.dtype]) -> np.ndarray | None:
+    """The first ``n`` non-blank lines of ASCII ``body`` as a structured (n,) array with
+    fields ``f0, f1, ...`` of the ``wide`` dtypes (one per value of a line), or None if the
+    lines are not exactly that (a bad token, a short or long line, too few lines, non-ASCII
+    bytes): then the caller's line-by-line parser says what is wrong."""
+    if n == 0 or not body.isascii():
+        return None
+    if b"\r" in body:  # loadtxt splits lines at \n only
+        body = body.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
+    record = np.dtype([(f"f{k}", dt) for k, dt in enumerate(wide)])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # "blank lines do not count towards max_rows"
+        try:
+            table = np.loadtxt(io.BytesIO(body), dtype=record, comments=None, max_rows=n,
+                               ndmin=1)
+        except (ValueError, OverflowError, TypeError, MemoryError):
+            return None
+    return table if table.shape == (n,) else None
+
+
+def _narrow(wide: np.ndarray, dt: np.dtype) -> np.ndarray | None:
+    """``wide`` (float64 / int64 / uint64 values) as ``dt``, or None if a value is out of its
+    range (a finite float beyond float32, an integer that does not fit)."""
+    if dt.kind == "f":
+        if dt.itemsize < 8:
+            with np.errstate(invalid="ignore"):
+                if np.any(np.isfinite(wide) & (np.abs(wide) > np.finfo(dt).max)):
+                    return None
+        with np.errstate(under="ignore"):  # 1e-320 becomes 0 in float32, as C's strtof does
+            return wide.astype(dt)
+    if dt.itemsize < 8:
+        info = np.iinfo(dt)
+        if wide.size and (wide.min() < info.min or wide.max() > info.max):
+            return None
+    elif dt.kind == "u" and wide.dtype.kind == "i" and wide.size and wide.min() < 0:
+        return None
+    return wide.astype(dt)
+
+
 def _ascii_column(block: np.ndarray, dt: np.dtype, where: str) -> np.ndarray:
     """Text tokens -> values of ``dt``; a bad token or an integer out of range is named."""
     try:
@@ -482,7 +626,8 @@ def _ascii_column(block: np.ndarray, dt: np.dtype, where: str) -> np.ndarray:
             if too_big.any():  # would overflow (with a RuntimeWarning) into inf
                 raise InputError(f"{where}: value {str(block[too_big][0])!r} out of range for "
                                  f"F{dt.itemsize * 8}")
-            return wide_f.astype(dt)
+            with np.errstate(under="ignore"):  # a tiny value becomes 0 in float32
+                return wide_f.astype(dt)
         wide = block.astype(np.uint64 if dt == np.dtype("<u8") else np.int64)
     except (ValueError, OverflowError):
         wide = None
@@ -512,6 +657,22 @@ def pcd_bytes(frame: PointCloudFrame, data: str = "binary", xyz_dtype: object = 
 
     ``data`` is ``'binary'``, ``'ascii'`` (floats with round-trip precision) or
     ``'binary_compressed'`` (LZF). Organised frames keep WIDTH x HEIGHT."""
+    return b"".join(_pcd_parts(frame, data, xyz_dtype, source))
+
+
+def _records(cols: Sequence[tuple[str, np.ndarray]], n: int) -> memoryview:
+    """The columns packed row by row (one record per point), as a memoryview of new memory."""
+    record = np.dtype({"names": [f"f{k}" for k in range(len(cols))],
+                       "formats": [c.dtype for _, c in cols]})
+    table = np.empty(n, dtype=record)
+    for k, (_, c) in enumerate(cols):
+        table[f"f{k}"] = c
+    return table.data.cast("B")
+
+
+def _pcd_parts(frame: PointCloudFrame, data: str, xyz_dtype: object, source: str
+               ) -> list[bytes | memoryview]:
+    """The PCD file of :func:`pcd_bytes` as a header and a body (not joined)."""
     if data not in _PCD_DATA_KINDS:
         raise InputError(f"{source}: PCD data must be one of {', '.join(_PCD_DATA_KINDS)}, "
                          f"got {data!r}")
@@ -534,26 +695,21 @@ def pcd_bytes(frame: PointCloudFrame, data: str = "binary", xyz_dtype: object = 
     ]
     head = ("\n".join(lines) + "\n").encode("ascii")
     if data == "binary":
-        record = np.dtype({"names": [f"f{k}" for k in range(len(cols))],
-                           "formats": [c.dtype for _, c in cols]})
-        table = np.empty(n, dtype=record)
-        for k, (_, c) in enumerate(cols):
-            table[f"f{k}"] = c
-        return head + table.tobytes()
+        return [head, _records(cols, n)]
     if data == "binary_compressed":
-        raw = b"".join(c.tobytes() for _, c in cols)
+        raw = b"".join([np.ascontiguousarray(c).data.cast("B") for _, c in cols])
         packed = lzf_compress(raw) if raw else b""
-        return head + struct.pack("<II", len(packed), len(raw)) + packed
+        return [head + struct.pack("<II", len(packed), len(raw)), packed]
     fmt = " ".join(_ascii_format(c.dtype) for _, c in cols)
     values = [c.tolist() for _, c in cols]
     body = "".join(fmt % row + "\n" for row in zip(*values))
-    return head + body.encode("ascii")
+    return [head, body.encode("ascii")]
 
 
 def write_pcd(path: str | os.PathLike[str], frame: PointCloudFrame, data: str = "binary",
               xyz_dtype: object = np.float32) -> Path:
     """Write ``frame`` as a PCD file (see :func:`pcd_bytes`) atomically; returns the path."""
-    return atomic_write_bytes(path, pcd_bytes(frame, data, xyz_dtype, source=str(path)))
+    return atomic_write_bytes(path, _pcd_parts(frame, data, xyz_dtype, source=str(path)))
 
 
 # --------------------------------------------------------------------------------------------
@@ -633,6 +789,18 @@ def parse_ply_bytes(data: bytes, source: str, sensor: str = "", t_ns: int = 0,
     body = data[offset:]
     order = _PLY_FORMATS[fmt]
     columns: list[tuple[str, np.ndarray]] = []
+    table = None
+    if fmt == "ascii" and not any(e[1] for e in elements[:index]):  # vertex data come first
+        table = _ascii_table(body, n, [_wide_dtype(np.dtype(t)) for _, t in props])  # type: ignore[arg-type]
+    if table is not None:
+        for k, (name, typ) in enumerate(props):
+            values = _narrow(table[f"f{k}"], np.dtype(typ))  # type: ignore[arg-type]
+            if values is None:  # out of range: the line-by-line parser below names the value
+                columns = []
+                break
+            columns.append((name, values))
+        else:
+            return _frame_from_columns(columns, source, sensor, t_ns, None, frame_id)
     if fmt == "ascii":
         try:
             rows = body.decode("ascii").splitlines()
@@ -696,12 +864,7 @@ def ply_bytes(frame: PointCloudFrame, data: str = "binary_little_endian",
     lines.append("end_header")
     head = ("\n".join(lines) + "\n").encode("ascii")
     if data == "binary_little_endian":
-        record = np.dtype({"names": [f"f{k}" for k in range(len(cols))],
-                           "formats": [c.dtype for _, c in cols]})
-        table = np.empty(n, dtype=record)
-        for k, (_, c) in enumerate(cols):
-            table[f"f{k}"] = c
-        return head + table.tobytes()
+        return b"".join([head, _records(cols, n)])
     fmt = " ".join(_ascii_format(c.dtype) for _, c in cols)
     values = [c.tolist() for _, c in cols]
     return head + "".join(fmt % row + "\n" for row in zip(*values)).encode("ascii")

@@ -17,7 +17,14 @@ import numpy as np
 from rigcal.errors import ConfigError, InputError
 from rigcal.recording import PointCloudFrame, StereoFrame
 
-__all__ = ["SgbmParams", "StereoRig", "disparity_from_pair", "point_cloud_from_pair"]
+__all__ = [
+    "SgbmParams",
+    "StereoRig",
+    "disparity_from_pair",
+    "downsample_pair",
+    "point_cloud_from_pair",
+    "point_cloud_in_window",
+]
 
 
 @dataclass(frozen=True)
@@ -143,6 +150,75 @@ def disparity_from_pair(frame: StereoFrame, params: SgbmParams = SgbmParams()) -
     return disp
 
 
+def _cloud(frame: StereoFrame, rig: StereoRig, disp: np.ndarray, left: np.ndarray, u0: int,
+           v0: int) -> PointCloudFrame:
+    """The organised cloud of a disparity map whose pixel (0, 0) is the image's (u0, v0)."""
+    h, w = disp.shape
+    z = rig.depth_m(disp)
+    u = np.arange(u0, u0 + w, dtype=float)[None, :]
+    v = np.arange(v0, v0 + h, dtype=float)[:, None]
+    x = (u - rig.cx) * z / rig.fx
+    y = (v - rig.cy) * z / rig.fy
+    pts = np.stack([x, y, z], axis=-1).reshape(-1, 3)
+    gray = _gray(left).reshape(-1).astype(np.float32)
+    return PointCloudFrame(
+        frame.sensor,
+        frame.t_ns,
+        pts,
+        {"intensity": gray, "disparity_px": disp.reshape(-1)},
+        organized_shape=(h, w),
+        frame_id=frame.frame_id,
+    )
+
+
+def downsample_pair(frame: StereoFrame, rig: StereoRig, factor: int) -> tuple[StereoFrame, StereoRig]:
+    """The pair shrunk ``factor`` times (area averaging) and the rig that goes with it (pixel
+    centres kept: ``c' = (c + 0.5) / factor - 0.5``): a cheap, coarse disparity map."""
+    import cv2
+
+    if isinstance(factor, bool) or not isinstance(factor, int) or factor < 1:
+        raise ConfigError(f"stereo: downsampling factor must be an integer >= 1, got {factor!r}")
+    w, h = rig.width // factor, rig.height // factor
+    if w < 16 or h < 16:
+        raise ConfigError(f"stereo: downsampling {rig.width}x{rig.height} by {factor} leaves "
+                          f"{w}x{h} px")
+    small = [cv2.resize(img[: h * factor, : w * factor], (w, h), interpolation=cv2.INTER_AREA)
+             for img in (frame.left, frame.right)]
+    out = StereoFrame(frame.sensor, frame.t_ns, small[0], small[1], frame_id=frame.frame_id)
+    return out, StereoRig(
+        fx=rig.fx / factor, fy=rig.fy / factor, cx=(rig.cx + 0.5) / factor - 0.5,
+        cy=(rig.cy + 0.5) / factor - 0.5, baseline_m=rig.baseline_m, width=w, height=h,
+    )
+
+
+def point_cloud_in_window(
+    frame: StereoFrame, rig: StereoRig, window: tuple[int, int, int, int],
+    params: SgbmParams = SgbmParams(),
+) -> PointCloudFrame:
+    """Like :func:`point_cloud_from_pair` for the left image's pixels ``[v0:v1, u0:u1]`` only
+    (``window`` = (u0, v0, u1, v1), clipped to the image): SGBM runs on those rows from
+    ``min_disparity + num_disparities`` columns left of ``u0`` (the right image's search
+    range), so the cost scales with the window. The cloud is organised with the window's shape;
+    its pixel (0, 0) is the image's (u0, v0) (a pinhole with ``cx - u0``, ``cy - v0``)."""
+    h, w = frame.left.shape[:2]
+    if (w, h) != rig.size_wh:
+        raise InputError(
+            f"sensor '{frame.sensor}': images are {w}x{h} px, the stereo rig expects "
+            f"{rig.width}x{rig.height}"
+        )
+    u0, v0, u1, v1 = (int(a) for a in window)
+    u0, u1 = max(0, u0), min(w, u1)
+    v0, v1 = max(0, v0), min(h, v1)
+    if u1 <= u0 or v1 <= v0:
+        raise InputError(f"sensor '{frame.sensor}': empty window {window} in a {w}x{h} image")
+    reach = params.min_disparity + params.num_disparities
+    ua = max(0, u0 - reach)
+    crop = StereoFrame(frame.sensor, frame.t_ns, frame.left[v0:v1, ua:u1],
+                       frame.right[v0:v1, ua:u1], frame_id=frame.frame_id)
+    disp = disparity_from_pair(crop, params)[:, u0 - ua:]
+    return _cloud(frame, rig, disp, frame.left[v0:v1, u0:u1], u0, v0)
+
+
 def point_cloud_from_pair(
     frame: StereoFrame, rig: StereoRig, params: SgbmParams = SgbmParams()
 ) -> PointCloudFrame:
@@ -155,19 +231,4 @@ def point_cloud_from_pair(
             f"sensor '{frame.sensor}': images are {w}x{h} px, the stereo rig expects "
             f"{rig.width}x{rig.height}"
         )
-    disp = disparity_from_pair(frame, params)
-    z = rig.depth_m(disp)
-    u = np.arange(w, dtype=float)[None, :]
-    v = np.arange(h, dtype=float)[:, None]
-    x = (u - rig.cx) * z / rig.fx
-    y = (v - rig.cy) * z / rig.fy
-    pts = np.stack([x, y, z], axis=-1).reshape(-1, 3)
-    gray = _gray(frame.left).reshape(-1).astype(np.float32)
-    return PointCloudFrame(
-        frame.sensor,
-        frame.t_ns,
-        pts,
-        {"intensity": gray, "disparity_px": disp.reshape(-1)},
-        organized_shape=(h, w),
-        frame_id=frame.frame_id,
-    )
+    return _cloud(frame, rig, disparity_from_pair(frame, params), frame.left, 0, 0)

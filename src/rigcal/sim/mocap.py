@@ -466,7 +466,7 @@ def _lidar_rays(model: LidarModel, offset_deg: float) -> tuple[np.ndarray, np.nd
     az = np.radians(offset_deg + model.azimuth_step_deg * np.arange(model.num_azimuths))
     ce, se = np.cos(el)[None, :], np.sin(el)[None, :]
     dirs = np.stack(np.broadcast_arrays(ce * np.cos(az)[:, None], ce * np.sin(az)[:, None], se), axis=-1)
-    rings = np.broadcast_to(np.arange(model.num_rings, dtype=np.int32), (model.num_azimuths, model.num_rings))
+    rings = np.broadcast_to(np.arange(model.num_rings, dtype=np.uint16), (model.num_azimuths, model.num_rings))
     return dirs.reshape(-1, 3), rings.reshape(-1).copy()
 
 
@@ -488,7 +488,7 @@ def cast_lidar(
     the floor (map z = 0) and ``boxes``; a random azimuth offset in [0, step) is drawn from
     ``rng`` (the firing angles of consecutive revolutions differ), then one range noise per
     return (``range_sigma_m``, default the model's). Points (N, 3) in the lidar frame with
-    fields ``ring`` (int32), ``intensity`` (float32) and ``surface`` (int8: 0 target, 1 floor,
+    fields ``ring`` (uint16), ``intensity`` (float32) and ``surface`` (int8: 0 target, 1 floor,
     2 clutter) - the last one is simulation truth, not something a lidar reports.
     ``azimuth_fov_deg`` (lo, hi) [deg, lidar frame, counter-clockwise from +x]: only returns
     in this window are kept (a Velodyne's FOV setting); None: all around."""

@@ -37,7 +37,7 @@ def test_hdl64e_scan_counts_and_rings():
     assert isinstance(frame, PointCloudFrame)
     assert frame.sensor == "lidar1" and frame.t_ns == 5
     ring = frame.fields["ring"]
-    assert ring.dtype == np.int32 and ring.min() == 0 and ring.max() == 63
+    assert ring.dtype == np.uint16 and ring.min() == 0 and ring.max() == 63
     # every downward ring hits the ground all around: 2118 returns each
     counts = np.bincount(ring, minlength=64)
     down = np.array(m.vertical_angles_deg) < -5.0

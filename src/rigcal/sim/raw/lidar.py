@@ -8,7 +8,7 @@ elevation ``vertical_angles_deg[i]``; each revolution fires every laser at the a
 
 * ``points_xyz``: ``(range + noise) * direction`` in the lidar frame [m], range noise Gaussian
   with ``range_sigma_m``;
-* ``ring`` (int32): the laser index;
+* ``ring`` (uint16, as Velodyne drivers publish it): the laser index;
 * ``intensity`` (float32, 0..255): ``255 * reflectivity * |cos(incidence)|`` of the surface.
 
 Points are ordered by azimuth, then by ring (as a Velodyne packet stream). The scan is
@@ -111,7 +111,7 @@ class LidarModel:
             np.broadcast_arrays(ce * np.cos(az)[:, None], ce * np.sin(az)[:, None], se), axis=-1
         ).reshape(-1, 3)
         rings = np.broadcast_to(
-            np.arange(self.num_rings, dtype=np.int32), (self.num_azimuths, self.num_rings)
+            np.arange(self.num_rings, dtype=np.uint16), (self.num_azimuths, self.num_rings)
         )
         return d, rings.reshape(-1).copy()
 

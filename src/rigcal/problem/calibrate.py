@@ -142,12 +142,16 @@ def _fit(
     reference: str,
     poses0: Mapping[str, np.ndarray],
     options: CalibrationOptions,
+    search: bool = True,
 ) -> _Fit:
+    """The mode's fit from ``poses0``; ``search`` also tries the alternative radar tilts
+    (:func:`solve_global`), without it one local solve (a refit from a nearby solution)."""
+    solve_from = solve_global if search else solve
     # refuse, saying what is missing, when the boards cannot determine the poses
     check_observable(dataset, mode, reference, options.hold_radar_plane)
     if mode == "fcpe":
         prob = build_pairwise(dataset, poses0, reference, all_pairs(dataset), options.hold_radar_plane)
-        sol = solve_global(prob)
+        sol = solve_from(prob)
         return _Fit(dict(sol.poses), prob, sol, {}, 0, {})
     if mode == "mcpe":
         # each sensor against the reference: independent pairwise problems (paper eq. 6)
@@ -157,7 +161,7 @@ def _fit(
             prob = build_pairwise(dataset, poses0, reference, [pair], options.hold_radar_plane)
             prob = replace(prob, poses=tuple(p for p in prob.poses if p.name in (reference, other)))
             probs.append(prob)
-            sols.append(solve_global(prob))
+            sols.append(solve_from(prob))
         prob, sol = merge_independent(probs, sols)
         return _Fit(dict(sol.poses), prob, sol, {}, 0, {})
     # PSE with iterated diagonal noise: one Gauss-Newton step, then a variance-component update,
@@ -223,7 +227,7 @@ def _fit(
     it = 0
     # first a full solve with identity noise (the paper's starting point) so the poses are
     # converged before the one-step noise updates begin
-    sol = solve_global(prob, layout=layout)
+    sol = solve_from(prob, layout=layout)
     if not sol.converged:
         raise ConvergenceError(f"PSE did not converge: {sol.status}")
     if options.pse_noise == "identity":
@@ -500,9 +504,11 @@ def _cross_validation(
     for f in range(folds):
         test = order[f::folds]
         train = np.setdiff1d(usable, test)
-        fit_mode = _fit_radar_reference if _radar_reference(dataset, mode, reference) else _fit
         try:
-            fit = fit_mode(dataset.select_boards(train), mode, reference, poses, options)
+            if _radar_reference(dataset, mode, reference):
+                fit = _fit_radar_reference(dataset.select_boards(train), mode, reference, poses, options)
+            else:  # a refit from the full fit: one local solve (the full fit chose the basin)
+                fit = _fit(dataset.select_boards(train), mode, reference, poses, options, search=False)
         except RigcalError as exc:
             log.info("cross-validation fold %d skipped: %s", f, exc)
             continue

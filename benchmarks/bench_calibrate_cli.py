@@ -12,24 +12,19 @@ import argparse
 import os
 import platform
 import statistics
-import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
+
+from timing import process_wall_times
 
 MANIFEST = Path(__file__).resolve().parents[1] / "examples" / "prius" / "rig.yaml"
 
 
 def wall_times(argv: list[str], runs: int) -> list[float]:
-    times = []
     with tempfile.TemporaryDirectory() as tmp:
-        for k in range(runs):
-            cmd = [sys.executable, "-m", "rigcal.cli.main", *argv, "--out", f"{tmp}/out{k}"]
-            t0 = time.perf_counter()
-            subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-            times.append(time.perf_counter() - t0)
-    return times
+        return process_wall_times(
+            lambda k: [sys.executable, "-m", "rigcal.cli.main", *argv, "--out", f"{tmp}/out{k}"], runs)
 
 
 def main() -> int:

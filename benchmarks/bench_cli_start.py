@@ -13,21 +13,15 @@ import argparse
 import os
 import platform
 import statistics
-import subprocess
 import sys
-import time
+
+from timing import process_wall_times
 
 COMMANDS = (["--version"], ["--help"], ["calibrate", "--help"])
 
 
 def wall_times(argv: list[str], runs: int) -> list[float]:
-    cmd = [sys.executable, "-m", "rigcal.cli.main", *argv]
-    times = []
-    for _ in range(runs):
-        t0 = time.perf_counter()
-        subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        times.append(time.perf_counter() - t0)
-    return times
+    return process_wall_times([sys.executable, "-m", "rigcal.cli.main", *argv], runs)
 
 
 def main() -> int:

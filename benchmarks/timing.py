@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import statistics
+import subprocess
 import time
-from typing import Callable
+from typing import Callable, Sequence
 
 
 def median_ms(fn: Callable[[], object], runs: int) -> float:
@@ -16,3 +17,15 @@ def median_ms(fn: Callable[[], object], runs: int) -> float:
         fn()
         times.append(time.perf_counter() - t)
     return statistics.median(times) * 1000
+
+
+def process_wall_times(cmd: Sequence[str] | Callable[[int], Sequence[str]], runs: int) -> list[float]:
+    """Wall times [s] of ``runs`` runs of the command ``cmd`` (or ``cmd(k)`` for run ``k``),
+    each a new process with its output discarded; a failing run raises."""
+    times = []
+    for k in range(runs):
+        argv = cmd(k) if callable(cmd) else cmd
+        t0 = time.perf_counter()
+        subprocess.run(list(argv), check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        times.append(time.perf_counter() - t0)
+    return times

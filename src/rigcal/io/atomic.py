@@ -25,6 +25,16 @@ from rigcal.io.limits import path_stat
 _BUFFERS = (bytes, bytearray, memoryview)
 
 
+def _make_parent(target: Path) -> None:
+    """Create ``target``'s missing parent folders (InputError naming the folder on failure)."""
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(
+            f"{target.parent}: cannot create output directory: {exc.strerror or exc}"
+        ) from None
+
+
 def atomic_write_bytes(path: str | os.PathLike[str],
                        data: bytes | bytearray | memoryview | list | tuple) -> Path:
     """Write ``data`` to ``path`` atomically; returns the path. OS errors raise InputError.
@@ -36,12 +46,7 @@ def atomic_write_bytes(path: str | os.PathLike[str],
     for part in parts:
         if not isinstance(part, _BUFFERS):
             raise TypeError(f"atomic_write_bytes: data must be bytes, got {type(part).__name__}")
-    try:
-        target.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise InputError(
-            f"{target.parent}: cannot create output directory: {exc.strerror or exc}"
-        ) from exc
+    _make_parent(target)
     st = path_stat(target, "output file")
     if st is not None and stat.S_ISDIR(st.st_mode):
         raise InputError(f"{target}: is a directory, cannot write a file there")
@@ -186,12 +191,7 @@ def staged_folder(path: str | os.PathLike[str]) -> Iterator[Path]:
     or nothing. An existing folder that holds other files is refused (InputError)."""
     target = Path(path)
     _replaceable(target)
-    try:
-        target.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise InputError(
-            f"{target.parent}: cannot create output directory: {exc.strerror or exc}"
-        ) from None
+    _make_parent(target)
     stage = target.parent / f".{target.name}.{secrets.token_hex(6)}.partial"
     try:
         stage.mkdir()

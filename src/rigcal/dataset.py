@@ -15,6 +15,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, replace
 from enum import Enum
+from functools import cached_property
 from typing import Iterable, Mapping
 
 import numpy as np
@@ -171,6 +172,18 @@ class Dataset:
     @property
     def names(self) -> tuple[str, ...]:
         return tuple(s.name for s in self.sensors)
+
+    @cached_property
+    def pairs(self) -> tuple[tuple[str, str], ...]:
+        """Every comparable sensor pair ``(a, b)`` in dataset order, derived once per dataset
+        (two 2D radars share no 3D point, so they are not a pair)."""
+        radar = SensorKind.RADAR
+        return tuple(
+            (a.name, b.name)
+            for i, a in enumerate(self.sensors)
+            for b in self.sensors[i + 1:]
+            if not (a.kind == radar and b.kind == radar)
+        )
 
     def sensor(self, name: str) -> SensorDetections:
         for s in self.sensors:

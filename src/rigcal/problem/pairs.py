@@ -107,11 +107,5 @@ def pair_data(dataset: Dataset, a: str, b: str, boards: np.ndarray | None = None
 
 
 def all_pairs(dataset: Dataset) -> list[tuple[str, str]]:
-    """Every comparable sensor pair, in dataset order."""
-    names = dataset.names
-    out = []
-    for i, a in enumerate(names):
-        for b in names[i + 1 :]:
-            if comparable(dataset.sensor(a), dataset.sensor(b)):
-                out.append((a, b))
-    return out
+    """Every comparable sensor pair, in dataset order (:attr:`Dataset.pairs`, derived once)."""
+    return list(dataset.pairs)

@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from rigcal.cli.args import number, subcommand
+from rigcal.cli.args import count, number, subcommand
 
 #: the study's targets and sensors (:data:`rigcal.study.mocap_study.TARGETS` / ``SENSORS``)
 TARGETS = ("diamond", "cylinder")
@@ -67,10 +67,67 @@ def add_parser(sub) -> None:
         "the table next to the paper's numbers.",
         epilog=EPILOG,
     ))
+    pr = subcommand(
+        st_sub, "prius",
+        help="Domhof et al. Tables II-III on the shared Prius detections",
+        description="Reproduce Domhof et al.'s Table II (single-board vs all-board lidar-stereo "
+        "RMSE) and Table III (median +- MAD of the RMSE over random sets of boards, per "
+        "configuration and pair) on a dataset manifest (default: the shared Prius detections, "
+        "examples/prius/rig.yaml). Every RMSE is reported on all boards (the paper's choice) "
+        "and on the boards the draw did not use. Prints Markdown tables next to the paper's "
+        "values; --out DIR also writes study.md and study.json (every number).",
+        epilog="examples:\n  rigcal study prius --table III --draws 200 --out prius_study/\n"
+        "  rigcal study prius examples/prius/rig.yaml --table II",
+    )
+    pr.add_argument("manifest", nargs="?", default=None, metavar="RIG.yaml",
+                    help="dataset manifest (default: examples/prius/rig.yaml of this checkout)")
+    pr.add_argument("--table", choices=("II", "III", "all"), default="all")
+    pr.add_argument("--draws", type=count(1, 100000), default=200, help="random board sets (default 200)")
+    pr.add_argument("--boards", type=count(3, 1000), default=10, help="boards per set (default 10)")
+    pr.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    pr.add_argument("--out", metavar="DIR", help="write study.md and study.json there")
+    pr.add_argument("--json", action="store_true", help="print study.json on stdout instead of Markdown")
     st.set_defaults(func=lambda args, console: run(args, console, st))
 
 
+def run_prius(args, console) -> int:
+    from pathlib import Path
+
+    from rigcal.cli.output import progress_bar
+    from rigcal.errors import InputError
+    from rigcal.io.atomic import staged_folder
+    from rigcal.io.manifest import load_manifest
+    from rigcal.study import prius
+
+    manifest = args.manifest
+    if manifest is None:
+        manifest = Path(__file__).resolve().parents[3] / "examples" / "prius" / "rig.yaml"
+        if not manifest.is_file():
+            raise InputError("no manifest given and examples/prius/rig.yaml not found beside the package")
+    dataset = load_manifest(manifest)
+    rows = []
+    with progress_bar(console) as bar:
+        if args.table in ("II", "all"):
+            task = bar.add_task("Table II", total=None)
+            rows += prius.table_ii(dataset, progress=lambda d, t: bar.update(task, completed=d, total=t))
+        if args.table in ("III", "all"):
+            task = bar.add_task("Table III", total=None)
+            rows += prius.table_iii(dataset, draws=args.draws, k=args.boards, seed=args.seed,
+                                    progress=lambda d, t: bar.update(task, completed=d, total=t))
+    meta = {"manifest": str(manifest), "draws": args.draws, "boards": args.boards, "seed": args.seed,
+            "rmse_on": {"median_mm": "all boards", "heldout_median_mm": "boards not in the draw"}}
+    text, data = prius.markdown(rows), prius.study_json(rows, meta)
+    if args.out:
+        with staged_folder(args.out) as stage:
+            (stage / "study.md").write_text(text)
+            (stage / "study.json").write_text(data + "\n")
+    sys.stdout.write((data if args.json else text) + "\n")
+    return 0
+
+
 def run(args, console, parser: argparse.ArgumentParser) -> int:
+    if args.study == "prius":
+        return run_prius(args, console)
     if args.study != "mocap":
         parser.parse_args(["--help"])  # prints the studies and exits 0
     from rigcal.study.mocap_study import run as run_study

@@ -38,8 +38,8 @@ reads ``/tf`` (and ``/tf_static``), composing the chain up to ``tf_parent`` (def
 Sensors: ``lidar`` (``sigma_m`` [m], optional ``vertical_step_deg``, ``horizontal_step_deg``,
 ``min_range_m``, ``max_range_m``, ``elevation_fov_deg: [lo, hi]``, ``azimuth_fov_deg: [lo,
 hi]``; defaults: a VLP-16) or ``camera`` (``intrinsics``: any camera file
-:func:`rigcal.io.camchain.read_camera_file` reads; ``camera`` names one camera of a multi-camera
-file; ``sigma_px`` [px]). ``frame_id`` (default: the name) is the sensor's frame in the initial
+:func:`rigcal.io.config.camchain.read_camera_file` reads; ``camera`` names one camera of a
+multi-camera file; ``sigma_px`` [px]). ``frame_id`` (default: the name) is the sensor's frame in the initial
 calibration, which must connect it to ``robot_frame``.
 
 :func:`parse_mocap_config` reads the referenced target definitions, intrinsics and initial
@@ -63,7 +63,7 @@ from rigcal.errors import InputError
 from rigcal.extract.guidance import PoseUncertainty
 from rigcal.extract.lidar import LidarSpec
 from rigcal.io._text import is_finite_number, load_yaml, read_text, type_name
-from rigcal.io.manifest import check_sensor_name
+from rigcal.io.dataset.manifest import check_sensor_name
 from rigcal.mocap.extrinsics import Extrinsics
 from rigcal.mocap.streams import DEFAULT_MAX_GAP_S
 from rigcal.problem.mocap import MocapOptions
@@ -370,7 +370,7 @@ def _target_definition(name: Any, raw: Any, where: str, base_dir: Path) -> Targe
     template = (_file(raw["template"], f"{where}.template", base_dir, "template cloud")
                 if "template" in raw else None)
     kind = (TargetKind.parse(raw["kind"], f"{where}.kind") if "kind" in raw else None)
-    from rigcal.io.vicon_json import read_vicon_target
+    from rigcal.io.config.vicon_json import read_vicon_target
 
     try:
         target = read_vicon_target(path, name=name, kind=kind, template=template, dims=dims)
@@ -404,7 +404,7 @@ def _camera_model(raw: dict, name: str, frame_id: str, where: str, base_dir: Pat
     if "intrinsics" not in raw:
         raise InputError(f"{where}: a camera needs 'intrinsics' (a camera file)")
     path = _file(raw["intrinsics"], f"{where}.intrinsics", base_dir, "intrinsics file")
-    from rigcal.io.camchain import read_camera_file
+    from rigcal.io.config.camchain import read_camera_file
 
     try:
         chain = read_camera_file(path)
@@ -525,7 +525,7 @@ def _options(raw: Any, source: str) -> MocapOptions:
 
 def read_initial_calibration(path: str | os.PathLike[str]) -> Extrinsics:
     """Initial extrinsics from the original tool's extrinsics JSON (``{to_frame, from_frame,
-    transform}`` entries) or a calibration YAML (:mod:`rigcal.io.calibration_files`: the
+    transform}`` entries) or a calibration YAML (:mod:`rigcal.io.results.calibration_files`: the
     original tool's per-sensor YAML, a rigcal ``calibration.yaml`` or ``absolute.yaml``),
     chosen by content."""
     from rigcal.mocap.extrinsics import parse_extrinsics_json
@@ -534,7 +534,7 @@ def read_initial_calibration(path: str | os.PathLike[str]) -> Extrinsics:
     text = read_text(p, "initial calibration")
     if text.lstrip().startswith(("{", "[")):
         return parse_extrinsics_json(text, str(p))
-    from rigcal.io.calibration_files import parse_calibration_transforms
+    from rigcal.io.results.calibration_files import parse_calibration_transforms
 
     cal = parse_calibration_transforms(text, str(p))
     return Extrinsics({(cal.parent_frame, child): T for child, T in cal.transforms.items()},

@@ -50,7 +50,7 @@ from rigcal.detect.placements import NS, StabilityRule
 from rigcal.errors import InputError
 from rigcal.io._text import is_number, load_yaml, read_text, type_name
 from rigcal.io.limits import check_scalar, path_stat
-from rigcal.io.manifest import _check_keys, _parse_board, _string, check_sensor_name
+from rigcal.io.dataset.manifest import _check_keys, _parse_board, _string, check_sensor_name
 
 INPUTS = {
     SensorKind.LIDAR: ("cloud",),

@@ -17,8 +17,8 @@ Fields of a sensor:
 * ``name`` (required): unique; no whitespace or path separators;
 * ``kind`` (required): ``lidar``, ``camera``, ``radar`` (2D) or ``radar3d``;
 * ``detections`` (required): a path relative to the manifest's directory (or absolute);
-  ``.csv`` is read by :mod:`rigcal.io.detections_csv`, ``.yaml``/``.yml`` by
-  :mod:`rigcal.io.accumulator`;
+  ``.csv`` is read by :mod:`rigcal.io.dataset.detections_csv`, ``.yaml``/``.yml`` by
+  :mod:`rigcal.io.dataset.accumulator`;
 * ``topic``: the accumulator topic; required when that file has more than one topic, refused
   for CSV files;
 * ``frame_id``: defaults to the accumulator entries' ``frame_id`` for accumulator input, else
@@ -53,10 +53,10 @@ from rigcal.dataset import (
 )
 from rigcal.errors import InputError
 from rigcal.io._text import is_number, load_yaml, read_text, type_name
-from rigcal.io.accumulator import accumulator_points_for_kind, parse_accumulator_yaml
+from rigcal.io.dataset.accumulator import accumulator_points_for_kind, parse_accumulator_yaml
 from rigcal.io.atomic import atomic_write_text, mark_output
-from rigcal.io.detections_csv import format_detections_csv, parse_detections_csv
-from rigcal.io.ignore import parse_ignore_yaml
+from rigcal.io.dataset.detections_csv import format_detections_csv, parse_detections_csv
+from rigcal.io.dataset.ignore import parse_ignore_yaml
 from rigcal.io.limits import path_stat
 
 MANIFEST_NAME = "rig.yaml"

@@ -196,7 +196,7 @@ def _kind(value: SensorKind | str, where: str) -> SensorKind:
 
 class FolderRecording:
     """An open folder recording (a context manager; nothing to release, for symmetry with
-    :class:`rigcal.io.bag.Recording`)."""
+    :class:`rigcal.io.recordings.bag.Recording`)."""
 
     def __init__(self, root: Path) -> None:
         self.path = root
@@ -344,7 +344,7 @@ def open_folder(path: str | os.PathLike[str]) -> FolderRecording:
 
 def open_any(path: str | os.PathLike[str]) -> Any:
     """A bag (``.bag``/``.db3``/``.mcap`` file, or a directory with ``metadata.yaml``) via
-    :func:`rigcal.io.bag.open_recording`, else a folder recording. Both offer ``topics()``,
+    :func:`rigcal.io.recordings.bag.open_recording`, else a folder recording. Both offer ``topics()``,
     ``count(topic)`` and ``frames(sensor_topics, start_ns, end_ns)``.
 
     A directory holding ``.db3``/``.mcap`` files but no ``metadata.yaml`` is refused as a ROS 2
@@ -369,7 +369,7 @@ def open_any(path: str | os.PathLike[str]) -> Any:
                     "rebuilds it), a .bag file or a folder with one subfolder per sensor"
                 )
             return FolderRecording(p)
-    from rigcal.io.bag import open_recording
+    from rigcal.io.recordings.bag import open_recording
 
     return open_recording(p)
 

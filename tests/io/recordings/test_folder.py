@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from rigcal.errors import InputError
-from rigcal.io.bag import write_recording
-from rigcal.io.folder import (
+from rigcal.io.recordings.bag import write_recording
+from rigcal.io.recordings.folder import (
     decode_image_bytes,
     open_any,
     open_folder,

@@ -44,10 +44,10 @@ import numpy as np
 
 from rigcal.dataset import SensorKind
 from rigcal.errors import InputError
-from rigcal.io.folder import decode_image_bytes
+from rigcal.io.recordings.folder import decode_image_bytes
 from rigcal.io.limits import os_error_text
 from rigcal.io.pointcloud import radar_frame_from_cloud
-from rigcal.io.pointcloud2 import (
+from rigcal.io.recordings.pointcloud2 import (
     decode_pointcloud2,
     encode_pointcloud2,
     make_header,

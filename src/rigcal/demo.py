@@ -206,7 +206,7 @@ def raw_demo(
     _check_boards(boards)
     from rigcal.detect.pipeline import run_detection
     from rigcal.io.recordings.bag import write_recording
-    from rigcal.io.recordings.folder import open_any
+    from rigcal.io.recordings.open_any import open_any
     from rigcal.io.dataset.manifest import write_dataset
     from rigcal.io.config.rig_config import parse_rig_config
     from rigcal.sim.raw import raw_rig_placements, simulate_recording

@@ -32,7 +32,7 @@ def detect_recording(recording_path: str, rig_path: str, console):
     """Detect the board in a recording with progress, print the detection table; the run."""
     from rigcal.cli.output import progress_bar, table
     from rigcal.detect.pipeline import run_detection
-    from rigcal.io.recordings.folder import open_any
+    from rigcal.io.recordings.open_any import open_any
     from rigcal.io.config.rig_config import load_rig_config
 
     rig = load_rig_config(rig_path)

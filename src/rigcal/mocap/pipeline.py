@@ -507,7 +507,7 @@ def _close(A: np.ndarray, B: np.ndarray) -> bool:
 def _extract_all(config: MocapConfig, ctx: _Context, sensors: dict[str, SensorSpec],
                  progress: Callable[[int, int], None] | None):
     """One pass over the recording's frames of ``sensors`` with the guidance in ``ctx``."""
-    from rigcal.io.recordings.folder import open_any
+    from rigcal.io.recordings.open_any import open_any
 
     diagnostics: list[MeasurementDiagnostic] = []
     observations: list[TargetObservation] = []

@@ -62,7 +62,7 @@ from rigcal.dataset import SensorKind
 from rigcal.errors import InputError
 from rigcal.extract.guidance import PoseUncertainty
 from rigcal.extract.lidar import LidarSpec
-from rigcal.io._text import is_finite_number, load_yaml, read_text, type_name
+from rigcal.io._text import check_keys, is_finite_number, load_yaml, read_text, type_name
 from rigcal.io.dataset.manifest import check_sensor_name
 from rigcal.mocap.extrinsics import Extrinsics
 from rigcal.mocap.streams import DEFAULT_MAX_GAP_S
@@ -96,15 +96,6 @@ _CAMERA_TARGET_KINDS = (TargetKind.CHECKERBOARD_DIAMOND, TargetKind.CYLINDER)
 
 # --------------------------------------------------------------------------------------------
 # small checks
-
-
-def _check_keys(value: Mapping[Any, Any], allowed: tuple[str, ...], where: str) -> None:
-    unknown = [str(k) for k in value if k not in allowed]
-    if unknown:
-        raise InputError(
-            f"{where}: unknown key(s) {', '.join(repr(k) for k in unknown)} "
-            f"(allowed: {', '.join(allowed)})"
-        )
 
 
 def _mapping(value: Any, where: str, what: str = "a mapping") -> dict:
@@ -343,7 +334,7 @@ def _target_definition(name: Any, raw: Any, where: str, base_dir: Path) -> Targe
         raise InputError(f"{where}: target names must be non-empty strings, got {name!r}")
     where = f"{where}.{name}"
     raw = _mapping(raw, where, "a mapping with a pose source and a definition or analytic")
-    _check_keys(raw, _TARGET_KEYS, where)
+    check_keys(raw, _TARGET_KEYS, where)
     pose = _pose_source(raw, where, base_dir)
     if ("definition" in raw) == ("analytic" in raw):
         raise InputError(f"{where}: give exactly one of 'definition' (a target JSON file) or "
@@ -440,7 +431,7 @@ def _sensor(i: int, raw: Any, source: str, base_dir: Path) -> SensorSpec:
         raise InputError(f"{where}.kind: unknown sensor kind '{raw['kind']}' for mocap "
                          "calibration (expected lidar or camera)")
     kind = SensorKind(kind_text)
-    _check_keys(raw, _LIDAR_KEYS if kind is SensorKind.LIDAR else _CAMERA_KEYS, where)
+    check_keys(raw, _LIDAR_KEYS if kind is SensorKind.LIDAR else _CAMERA_KEYS, where)
     topic = _string(raw["topic"], f"{where}.topic")
     frame_id = _string(raw["frame_id"], f"{where}.frame_id") if "frame_id" in raw else name
     if kind is SensorKind.LIDAR:
@@ -455,7 +446,7 @@ def _extraction(raw: Any, source: str) -> ExtractionSettings:
     where = f"{source}: extraction"
     raw = _mapping(raw, where)
     names = tuple(f.name for f in fields(ExtractionSettings))
-    _check_keys(raw, names, where)
+    check_keys(raw, names, where)
     kw: dict[str, Any] = {}
     for key, value in raw.items():
         w = f"{where}.{key}"
@@ -485,7 +476,7 @@ def _options(raw: Any, source: str) -> MocapOptions:
     where = f"{source}: options"
     raw = _mapping(raw, where)
     names = tuple(f.name for f in fields(MocapOptions))
-    _check_keys(raw, names, where)
+    check_keys(raw, names, where)
     defaults = MocapOptions()
     kw: dict[str, Any] = {}
     for key, value in raw.items():
@@ -547,7 +538,7 @@ def parse_mocap_config(text: str, source: str, base_dir: str | os.PathLike[str])
     base = Path(base_dir)
     data = load_yaml(text, source)
     data = _mapping(data, source, "a mapping with recording, mocap, robot_frame, sensors")
-    _check_keys(data, _TOP_KEYS, source)
+    check_keys(data, _TOP_KEYS, source)
     for key in ("recording", "mocap", "robot_frame", "sensors"):
         if key not in data:
             raise InputError(f"{source}: missing required key '{key}' (required: recording, "
@@ -558,12 +549,12 @@ def parse_mocap_config(text: str, source: str, base_dir: str | os.PathLike[str])
         raise InputError(f"{source}: recording: not found: {recording}")
 
     mocap = _mapping(data["mocap"], f"{source}: mocap", "a mapping with robot and targets")
-    _check_keys(mocap, _MOCAP_KEYS, f"{source}: mocap")
+    check_keys(mocap, _MOCAP_KEYS, f"{source}: mocap")
     for key in ("robot", "targets"):
         if key not in mocap:
             raise InputError(f"{source}: mocap: missing required key '{key}'")
     robot_raw = _mapping(mocap["robot"], f"{source}: mocap.robot", "a pose source mapping")
-    _check_keys(robot_raw, _POSE_KEYS, f"{source}: mocap.robot")
+    check_keys(robot_raw, _POSE_KEYS, f"{source}: mocap.robot")
     robot = _pose_source(robot_raw, f"{source}: mocap.robot", base)
     targets_raw = _mapping(mocap["targets"], f"{source}: mocap.targets",
                            "a mapping target name -> {pose source, definition}")
@@ -617,7 +608,7 @@ def parse_mocap_config(text: str, source: str, base_dir: str | os.PathLike[str])
                          "(there is no /tf_static to read)")
 
     report = _mapping(data.get("report") or {}, f"{source}: report")
-    _check_keys(report, _REPORT_KEYS, f"{source}: report")
+    check_keys(report, _REPORT_KEYS, f"{source}: report")
     overlays = report.get("overlays_per_sensor", 3)
     if not isinstance(overlays, int) or isinstance(overlays, bool) or overlays < 0:
         raise InputError(f"{source}: report.overlays_per_sensor: expected an integer >= 0, got "

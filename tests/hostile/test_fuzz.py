@@ -261,7 +261,7 @@ def _typestores():
 
 def _bag_seeds():
     """Serialised messages (ROS 1 and CDR) of every type the readers convert."""
-    from rigcal.io import bag
+    from rigcal.io.recordings import bag
     from rigcal.io.recordings.pointcloud2 import encode_pointcloud2
     from rigcal.recording import ImageFrame
 
@@ -284,7 +284,7 @@ def _bag_seeds():
 def _convert(ts, serialize: str, msgtype: str, raw: bytes) -> None:
     """What Recording does with one raw message: deserialise (a failure is wrapped into an
     InputError there, so any exception of the decoder is acceptable here) then convert."""
-    from rigcal.io import bag
+    from rigcal.io.recordings import bag
     from rigcal.io.config.intrinsics import camera_from_info
     from rigcal.io.pointcloud import radar_frame_from_cloud
     from rigcal.io.recordings.pointcloud2 import decode_pointcloud2

@@ -51,7 +51,7 @@ def main() -> int:
         import cv2
 
         from rigcal.detect.mono import detect_board_mono
-        from rigcal.io.intrinsics import read_intrinsics
+        from rigcal.io.config.intrinsics import read_intrinsics
         from rigcal.recording import ImageFrame
     except ImportError:
         print("mono detector: not available")

@@ -6,7 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from rigcal.dataset import Dataset
-from rigcal.io.manifest import dataset_from_files
+from rigcal.io.dataset.manifest import dataset_from_files
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "tudelft_prius" / "detections"
 

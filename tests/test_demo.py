@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 
 from rigcal.demo import absolute_demo
-from rigcal.io.calibration_files import read_calibration_transforms
-from rigcal.io.urdf import forward_kinematics, parse_urdf
+from rigcal.io.results.calibration_files import read_calibration_transforms
+from rigcal.io.results.urdf import forward_kinematics, parse_urdf
 
 
 def test_absolute_demo(tmp_path):

@@ -15,9 +15,9 @@ from rigcal.dataset import Dataset, SensorKind
 from rigcal.demo import RAW_TOPICS, demo_raw_rig, detection_errors, frames_by_topic, raw_rig_yaml
 from rigcal.detect.pipeline import run_detection
 from rigcal.geometry.se3 import invert
-from rigcal.io.bag import write_recording
-from rigcal.io.folder import open_any
-from rigcal.io.rig_config import parse_rig_config
+from rigcal.io.recordings.bag import write_recording
+from rigcal.io.recordings.open_any import open_any
+from rigcal.io.config.rig_config import parse_rig_config
 from rigcal.problem.calibrate import CalibrationOptions, calibrate
 from rigcal.problem.compare import errors_against_truth
 from rigcal.recording import RadarFrame

@@ -49,7 +49,7 @@ class DemoReport:
 
 
 def _calibrate_all(dataset, truth, out: Path, modes=("mcpe", "fcpe", "pse")) -> tuple[ModeOutcome, ...]:
-    from rigcal.io.results import write_results
+    from rigcal.io.results.calibration import write_results
     from rigcal.report.plot import plot_calibration
 
     outcomes = []
@@ -77,7 +77,7 @@ def _check_boards(boards: int) -> None:
 def detections_demo(out_dir: str | os.PathLike[str], seed: int = 7, boards: int = 29) -> DemoReport:
     """Simulate detections of a Prius-like rig, calibrate with every mode, compare with truth."""
     _check_boards(boards)
-    from rigcal.io.manifest import write_dataset
+    from rigcal.io.dataset.manifest import write_dataset
     from rigcal.sim import make_rig_placements, prius_like_rig, simulate
 
     rng = np.random.default_rng(seed)
@@ -205,10 +205,10 @@ def raw_demo(
     placements automatically, calibrate with every mode and compare with the truth."""
     _check_boards(boards)
     from rigcal.detect.pipeline import run_detection
-    from rigcal.io.bag import write_recording
-    from rigcal.io.folder import open_any
-    from rigcal.io.manifest import write_dataset
-    from rigcal.io.rig_config import parse_rig_config
+    from rigcal.io.recordings.bag import write_recording
+    from rigcal.io.recordings.open_any import open_any
+    from rigcal.io.dataset.manifest import write_dataset
+    from rigcal.io.config.rig_config import parse_rig_config
     from rigcal.sim.raw import raw_rig_placements, simulate_recording
 
     rng = np.random.default_rng(seed)
@@ -405,7 +405,7 @@ def _nominal_urdf(vehicle, names: Sequence[str], rng: np.random.Generator) -> st
     it (the truth off by a few cm and degrees), for the calibration to correct."""
     from rigcal.geometry.se3 import from_rt
     from rigcal.geometry.so3 import matrix_from_rpy
-    from rigcal.io.urdf import format_float, origin_from_matrix
+    from rigcal.io.results.urdf import format_float, origin_from_matrix
 
     parts = ['<?xml version="1.0"?>', '<robot name="demo_vehicle">', '  <link name="base_link"/>']
     for name in names:
@@ -438,12 +438,12 @@ def absolute_demo(
     from rigcal.absolute.labels import format_labels_yaml, parse_labels_yaml
     from rigcal.absolute.pipeline import absolute_calibration
     from rigcal.dataset import SensorKind
-    from rigcal.io.absolute_io import write_absolute
+    from rigcal.io.results.absolute import write_absolute
     from rigcal.io.atomic import atomic_write_text
-    from rigcal.io.calibration_files import read_calibration_transforms
-    from rigcal.io.manifest import load_manifest, write_dataset
+    from rigcal.io.results.calibration_files import read_calibration_transforms
+    from rigcal.io.dataset.manifest import load_manifest, write_dataset
     from rigcal.io.pointcloud import read_point_cloud, write_pcd
-    from rigcal.io.urdf import write_urdf
+    from rigcal.io.results.urdf import write_urdf
     from rigcal.problem.compare import pose_error
     from rigcal.recording import PointCloudFrame
     from rigcal.sim.rig import SimSensor, make_rig_placements, simulate

@@ -9,8 +9,8 @@ import yaml
 from rigcal.absolute.labels import format_labels_yaml
 from rigcal.cli.main import run
 from rigcal.dataset import SensorKind
-from rigcal.io.calibration_files import read_calibration_transforms
-from rigcal.io.manifest import write_dataset
+from rigcal.io.results.calibration_files import read_calibration_transforms
+from rigcal.io.dataset.manifest import write_dataset
 from rigcal.io.pointcloud import write_pcd
 from rigcal.recording import PointCloudFrame
 from rigcal.sim.rig import SimSensor, make_rig_placements, simulate

@@ -14,7 +14,7 @@ import pytest
 import rigcal
 from rigcal.cli.main import run
 from rigcal.geometry.se3 import invert
-from rigcal.io.manifest import write_dataset
+from rigcal.io.dataset.manifest import write_dataset
 from rigcal.sim.rig import make_rig_placements, prius_like_rig, simulate
 
 REAL = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "tudelft_prius"

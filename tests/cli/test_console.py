@@ -17,7 +17,7 @@ import rigcal
 from rigcal.cli import main as cli_main
 from rigcal.cli.main import run
 from rigcal.cli.output import PlainProgress
-from rigcal.io.manifest import write_dataset
+from rigcal.io.dataset.manifest import write_dataset
 from rigcal.sim.rig import make_rig_placements, prius_like_rig, simulate
 
 #: what `rigcal --help` and every `rigcal COMMAND --help` must not import

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from rigcal.cli.main import run
-from rigcal.io.bag import write_recording
+from rigcal.io.recordings.bag import write_recording
 from rigcal.recording import RadarFrame
 
 NS = 1_000_000_000

@@ -11,7 +11,7 @@ import pytest
 
 from rigcal.cli.main import run
 from rigcal.geometry.se3 import invert
-from rigcal.io.urdf import forward_kinematics, parse_urdf, read_original_calibration_yaml
+from rigcal.io.results.urdf import forward_kinematics, parse_urdf, read_original_calibration_yaml
 
 URDF = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "tudelft_prius" / "urdf"
 

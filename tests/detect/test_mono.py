@@ -21,7 +21,7 @@ from rigcal.detect.mono import (
 from rigcal.detect.result import BoardDetection, DetectionFailure
 from rigcal.errors import ConfigError
 from rigcal.geometry.so3 import so3_exp
-from rigcal.io.intrinsics import read_intrinsics
+from rigcal.io.config.intrinsics import read_intrinsics
 from rigcal.recording import ImageFrame
 from rigcal.sensors.camera import RadtanCamera
 from rigcal.targets.circle_board import board_centres

@@ -8,7 +8,7 @@ import pytest
 
 from rigcal.detect.pipeline import run_detection
 from rigcal.errors import InputError
-from rigcal.io.rig_config import parse_rig_config
+from rigcal.io.config.rig_config import parse_rig_config
 from rigcal.recording import RadarFrame
 
 NS = 1_000_000_000

@@ -14,10 +14,10 @@ import pytest
 from rigcal.cli.main import run
 from rigcal.errors import InputError
 from rigcal.geometry import from_rt, invert, matrix_from_rpy
-from rigcal.io.calibration_files import read_calibration_transforms
-from rigcal.io.manifest import load_manifest
-from rigcal.io.rig_config import load_rig_config
-from rigcal.io.urdf import forward_kinematics, parse_urdf
+from rigcal.io.results.calibration_files import read_calibration_transforms
+from rigcal.io.dataset.manifest import load_manifest
+from rigcal.io.config.rig_config import load_rig_config
+from rigcal.io.results.urdf import forward_kinematics, parse_urdf
 
 REPO = Path(__file__).resolve().parents[2]
 GUIDE = REPO / "docs" / "guide.md"

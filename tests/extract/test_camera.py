@@ -410,9 +410,9 @@ def test_image_and_camera_sizes_must_agree():
 # ---------------------------------------------------------------------------- by Target
 @needs_vicon
 def test_extract_by_target_definition(vicon):
-    """The target read from the original tool's JSON (rigcal.io.vicon_json) drives the same
+    """The target read from the original tool's JSON (rigcal.io.config.vicon_json) drives the same
     extractor: pattern from its dims, outline from its lidar keypoints."""
-    vicon_json = pytest.importorskip("rigcal.io.vicon_json")
+    vicon_json = pytest.importorskip("rigcal.io.config.vicon_json")
     templates = pytest.importorskip("rigcal.targets.templates")
     from rigcal.extract.camera import extract_target_camera
 

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rigcal.io.manifest import write_dataset
+from rigcal.io.dataset.manifest import write_dataset
 from rigcal.sim.rig import make_rig_placements, prius_like_rig, simulate
 
 BOMB = "".join(

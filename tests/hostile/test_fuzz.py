@@ -88,7 +88,7 @@ def _cloud():
 
 
 def test_fuzz_detections_csv(limited):
-    from rigcal.io.detections_csv import parse_detections_csv
+    from rigcal.io.dataset.detections_csv import parse_detections_csv
 
     seeds = [b"1,2,3,4\n5,6,7,8\n9,10,11,nan\n", b"1.5,2\n3,4\n", b"1,2,3\n4,5,6\n7,8,9\n"]
 
@@ -104,7 +104,7 @@ def test_fuzz_detections_csv(limited):
 
 def test_fuzz_radar_and_labels_csv(limited):
     from rigcal.absolute.labels import parse_labels_csv, parse_labels_yaml
-    from rigcal.io.folder import parse_radar_csv
+    from rigcal.io.recordings.folder import parse_radar_csv
 
     seeds = [b"x,y,z,rcs\n1,2,0.1,15\n3,4,0.2,nan\n", b"label,x,y,z\nrear_left,1,2,3\n",
              b"rear_left: [1, 2, 3]\nfront_left: [[1, 2, 3], [1, 2, 4]]\n"]
@@ -141,8 +141,8 @@ placements:
 
 def test_fuzz_yaml_manifest_and_rig(limited, tmp_path):
     from rigcal.io._text import load_yaml
-    from rigcal.io.manifest import parse_manifest
-    from rigcal.io.rig_config import parse_rig_config
+    from rigcal.io.dataset.manifest import parse_manifest
+    from rigcal.io.config.rig_config import parse_rig_config
 
     (tmp_path / "l.csv").write_text("1,2,3,4\n5,6,7,8\n9,10,11,12\n")
     (tmp_path / "r.csv").write_text("4\n1\n")
@@ -162,7 +162,7 @@ def test_fuzz_yaml_manifest_and_rig(limited, tmp_path):
 
 
 def test_fuzz_camera_files(limited):
-    from rigcal.io.intrinsics import parse_camera_info_yaml_text, parse_intrinsics_ini_text
+    from rigcal.io.config.intrinsics import parse_camera_info_yaml_text, parse_intrinsics_ini_text
 
     ini = (b"[image]\nwidth\n640\nheight\n480\n[cam]\ncamera matrix\n500 0 320\n0 500 240\n0 0 1\n"
            b"distortion\n0.1 -0.2 0.001 0.002 0.0\n")
@@ -243,7 +243,7 @@ URDF = b"""<?xml version="1.0"?>
 
 
 def test_fuzz_urdf(limited):
-    from rigcal.io.urdf import forward_kinematics, parse_urdf
+    from rigcal.io.results.urdf import forward_kinematics, parse_urdf
 
     def target(text):
         urdf = parse_urdf(text, "r.urdf")
@@ -261,8 +261,8 @@ def _typestores():
 
 def _bag_seeds():
     """Serialised messages (ROS 1 and CDR) of every type the readers convert."""
-    from rigcal.io import bag
-    from rigcal.io.pointcloud2 import encode_pointcloud2
+    from rigcal.io.recordings import bag
+    from rigcal.io.recordings.pointcloud2 import encode_pointcloud2
     from rigcal.recording import ImageFrame
 
     cloud = _cloud()
@@ -284,10 +284,10 @@ def _bag_seeds():
 def _convert(ts, serialize: str, msgtype: str, raw: bytes) -> None:
     """What Recording does with one raw message: deserialise (a failure is wrapped into an
     InputError there, so any exception of the decoder is acceptable here) then convert."""
-    from rigcal.io import bag
-    from rigcal.io.intrinsics import camera_from_info
+    from rigcal.io.recordings import bag
+    from rigcal.io.config.intrinsics import camera_from_info
     from rigcal.io.pointcloud import radar_frame_from_cloud
-    from rigcal.io.pointcloud2 import decode_pointcloud2
+    from rigcal.io.recordings.pointcloud2 import decode_pointcloud2
 
     deserialize = getattr(ts, serialize.replace("serialize", "deserialize"))
     try:
@@ -324,7 +324,7 @@ def test_fuzz_bag_messages(limited):
 
 def test_fuzz_pointcloud2_layouts(limited):
     """PointCloud2 messages with arbitrary (duck-typed) layout numbers and data."""
-    from rigcal.io.pointcloud2 import decode_pointcloud2
+    from rigcal.io.recordings.pointcloud2 import decode_pointcloud2
 
     u32 = st.integers(0, 2**32 - 1) | st.integers(0, 64)
     field = st.builds(SimpleNamespace, name=st.sampled_from(["x", "y", "z", "rcs", "x_0", ""]),

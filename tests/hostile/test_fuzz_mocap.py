@@ -13,8 +13,12 @@ from hypothesis import strategies as st
 from rigcal.errors import RigcalError
 from rigcal.geometry.se3 import from_rt
 from rigcal.geometry.so3 import matrix_from_rpy
-from rigcal.io.vicon_json import optimizer_config_json_text, parse_optimizer_config, parse_vicon_target
-from rigcal.io.vicon_json import OptimizerConfig, vicon_target_json_text
+from rigcal.io.config.vicon_json import (
+    optimizer_config_json_text,
+    parse_optimizer_config,
+    parse_vicon_target,
+)
+from rigcal.io.config.vicon_json import OptimizerConfig, vicon_target_json_text
 from rigcal.mocap.config import parse_mocap_config
 from rigcal.mocap.extrinsics import Extrinsics, extrinsics_json_text, parse_extrinsics_json
 from rigcal.mocap.streams import parse_pose_csv

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rigcal.io.bag import CameraInfo, write_recording
+from rigcal.io.recordings.bag import CameraInfo, write_recording
 from rigcal.io.pointcloud import pcd_bytes, ply_bytes
 from rigcal.recording import ImageFrame, PointCloudFrame, RadarFrame
 

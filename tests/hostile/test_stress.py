@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import yaml
 
-from rigcal.io.manifest import write_dataset
+from rigcal.io.dataset.manifest import write_dataset
 from rigcal.sim.rig import make_rig_placements, prius_like_rig, simulate
 
 pytestmark = pytest.mark.slow  # long: run in CI (CI=1 make test) and make test-all

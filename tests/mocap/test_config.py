@@ -15,7 +15,7 @@ from rigcal.dataset import SensorKind
 from rigcal.errors import InputError
 from rigcal.geometry.se3 import from_rt, invert
 from rigcal.geometry.so3 import matrix_from_rpy
-from rigcal.io.vicon_json import write_vicon_target
+from rigcal.io.config.vicon_json import write_vicon_target
 from rigcal.mocap import Extrinsics, write_extrinsics_json
 from rigcal.mocap.config import (
     ExtractionSettings,

@@ -27,7 +27,7 @@ import yaml
 from rigcal.errors import InputError
 from rigcal.geometry.se3 import from_rt
 from rigcal.geometry.so3 import so3_exp, so3_log
-from rigcal.io.vicon_json import write_vicon_target
+from rigcal.io.config.vicon_json import write_vicon_target
 from rigcal.mocap import matrix_to_quat_xyzw, write_extrinsics_json
 from rigcal.mocap.config import load_mocap_config
 from rigcal.mocap.pipeline import (

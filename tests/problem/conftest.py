@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from rigcal.io.manifest import dataset_from_files
+from rigcal.io.dataset.manifest import dataset_from_files
 from rigcal.problem.calibrate import CalibrationOptions, calibrate
 
 REAL = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "tudelft_prius"

@@ -419,7 +419,6 @@ def test_a_lidar_that_saw_one_plate_is_refused_not_converged():
 def test_an_undetermined_sensor_is_named_in_the_error():
     # the one-plate lidar next to a well-seen camera: the error names the lidar (sensor=), so
     # rigcal mocap can calibrate the camera without it
-    from rigcal.sim.mocap import paper_rig
     from rigcal.targets.templates import diamond_target
 
     rig, cam_obs = _camera_holds(np.random.default_rng(5), holds=4, frames=2)

@@ -18,7 +18,7 @@ import pytest
 from rigcal.errors import InputError
 from rigcal.geometry.se3 import invert, se3_log
 from rigcal.geometry.so3 import rpy_from_matrix
-from rigcal.io.camchain import read_camera_file
+from rigcal.io.config.camchain import read_camera_file
 from rigcal.mocap import read_extrinsics_json
 from rigcal.mocap.config import load_mocap_config
 from rigcal.mocap.pipeline import run_mocap

@@ -2,7 +2,7 @@
 
 Relative calibration gives every sensor's pose in a reference sensor's frame; this package ties
 those poses to the vehicle body frame (``T_body_sensor``), which is what a URDF or a TF tree
-needs (see :mod:`rigcal.io.urdf` and :mod:`rigcal.io.tf_export`).
+needs (see :mod:`rigcal.io.results.urdf` and :mod:`rigcal.io.results.tf_export`).
 
 * :mod:`~rigcal.absolute.labels` - labels files (YAML / CSV), wheel centres from single clicks
   or rim circles (robust 3D circle fit), markers, the ground plane of the external scan;

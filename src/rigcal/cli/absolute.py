@@ -59,11 +59,11 @@ def run(args, console) -> int:
     from rigcal.cli.output import not_written, pose_table, verdict_lines
     from rigcal.errors import InputError
     from rigcal.io._text import read_text
-    from rigcal.io.absolute_io import absolute_to_json_text, write_absolute
+    from rigcal.io.results.absolute import absolute_to_json_text, write_absolute
     from rigcal.io.atomic import staged_folder
-    from rigcal.io.calibration_files import read_initial_poses
+    from rigcal.io.results.calibration_files import read_initial_poses
     from rigcal.problem.calibrate import CalibrationOptions
-    from rigcal.io.manifest import load_manifest
+    from rigcal.io.dataset.manifest import load_manifest
     from rigcal.io.pointcloud import read_point_cloud
 
     dataset = load_manifest(args.manifest)

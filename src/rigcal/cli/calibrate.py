@@ -71,10 +71,10 @@ def run(args, console) -> int:
     from rigcal.cli.output import not_written, summary
     from rigcal.errors import InputError
     from rigcal.io.atomic import staged_folder
-    from rigcal.io.calibration_files import read_initial_poses
-    from rigcal.io.ignore import read_ignore_file
-    from rigcal.io.manifest import dataset_from_files, load_manifest
-    from rigcal.io.results import result_to_json_text, write_results
+    from rigcal.io.results.calibration_files import read_initial_poses
+    from rigcal.io.dataset.ignore import read_ignore_file
+    from rigcal.io.dataset.manifest import dataset_from_files, load_manifest
+    from rigcal.io.results.calibration import result_to_json_text, write_results
     from rigcal.problem.calibrate import CalibrationOptions, calibrate
 
     files = args.lidar or args.camera or args.radar or args.radar3d

@@ -32,8 +32,8 @@ def detect_recording(recording_path: str, rig_path: str, console):
     """Detect the board in a recording with progress, print the detection table; the run."""
     from rigcal.cli.output import progress_bar, table
     from rigcal.detect.pipeline import run_detection
-    from rigcal.io.folder import open_any
-    from rigcal.io.rig_config import load_rig_config
+    from rigcal.io.recordings.open_any import open_any
+    from rigcal.io.config.rig_config import load_rig_config
 
     rig = load_rig_config(rig_path)
     with open_any(recording_path) as rec, progress_bar(console, eta=True) as bar:
@@ -55,7 +55,7 @@ def detect_recording(recording_path: str, rig_path: str, console):
 
 def run(args, console) -> int:
     from rigcal.io.atomic import staged_folder
-    from rigcal.io.manifest import write_dataset
+    from rigcal.io.dataset.manifest import write_dataset
 
     found = detect_recording(args.recording, args.rig, console)
     with staged_folder(args.out) as stage:

@@ -36,9 +36,9 @@ def same_path(a: str, b: str) -> bool:
 
 def run(args, console) -> int:
     from rigcal.errors import InputError
-    from rigcal.io import tf_export
+    from rigcal.io.results import tf_export
     from rigcal.io.atomic import atomic_write_text
-    from rigcal.io.calibration_files import read_calibration_transforms
+    from rigcal.io.results.calibration_files import read_calibration_transforms
 
     if args.out and same_path(args.out, args.calibration):
         raise InputError(

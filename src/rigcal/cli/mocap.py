@@ -66,7 +66,7 @@ def run(args, console) -> int:
     from rigcal.cli.codes import EXIT_FLAGGED, EXIT_PARTIAL
     from rigcal.cli.output import not_written, progress_bar, summary, verdict_lines
     from rigcal.io.atomic import staged_folder
-    from rigcal.io.results import result_to_json_text
+    from rigcal.io.results.calibration import result_to_json_text
     from rigcal.mocap.config import load_mocap_config
     from rigcal.mocap.pipeline import run_mocap, write_mocap_outputs
 

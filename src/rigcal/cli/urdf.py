@@ -38,8 +38,8 @@ def add_parser(sub) -> None:
 
 def run(args, console) -> int:
     from rigcal.errors import InputError
-    from rigcal.io.calibration_files import read_calibration_transforms
-    from rigcal.io.urdf import write_urdf
+    from rigcal.io.results.calibration_files import read_calibration_transforms
+    from rigcal.io.results.urdf import write_urdf
 
     cal = read_calibration_transforms(args.calibration)
     joint_for = {}

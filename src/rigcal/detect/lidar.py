@@ -42,9 +42,8 @@ from rigcal.detect.pointcloud import (
     check_axis,
     check_box,
     find_hole_square,
-    remove_ground,
     rings_from_elevation,
-    board_candidates,
+    segment_board,
 )
 from rigcal.detect.result import BoardDetection, DetectionFailure, DetectionResult
 from rigcal.geometry.fitting import from_plane_2d, intersect_rays_plane, to_plane_2d
@@ -197,24 +196,12 @@ def detect_board_lidar(
             + (" and in the ROI" if lo is not None else "") + f"; need {cfg.min_board_points}",
         )
     rng = np.random.default_rng(cfg.seed)
-    q = pts[idx]
-    if cfg.remove_ground:
-        above, _ = remove_ground(
-            q, up, rng, threshold_m=cfg.ground_threshold_m, max_angle_deg=cfg.ground_max_angle_deg,
-            iterations=cfg.ground_iterations,
-        )
-        idx, q = idx[above], q[above]
     rings = None
     if "ring" in frame.fields:
         rings = np.asarray(frame.fields["ring"]).astype(np.int64)
     hp = HoleParams.from_config(board, cfg)
     try:
-        cands = board_candidates(
-            q, board, rng, cell_m=cfg.cluster_cell_m, min_points=cfg.min_board_points,
-            plane_threshold_m=cfg.plane_threshold_m, plane_iterations=cfg.plane_iterations,
-            size_tolerance_m=cfg.size_tolerance_m, check_size=cfg.check_board_size,
-            allow_partial=cfg.allow_partial_board,
-        )
+        idx, cands = segment_board(pts[idx], idx, board, up, rng, cfg)
     except StepFailed as exc:
         return fail(exc.reason, exc.detail)
     failures: list[StepFailed] = []

@@ -26,7 +26,7 @@ from rigcal.detect.placements import (
 from rigcal.detect.result import BoardDetection, DetectionFailure, DetectionResult
 from rigcal.errors import InputError
 from rigcal.io.limits import check_scalar
-from rigcal.io.rig_config import DetectionRig, SensorSetup
+from rigcal.io.config.rig_config import DetectionRig, SensorSetup
 from rigcal.recording import Frame, ImageFrame, StereoFrame
 
 
@@ -111,7 +111,7 @@ def build_detector(setup: SensorSetup, rig: DetectionRig, recording: RecordingLi
 
 def _camera_model(setup: SensorSetup, rig: DetectionRig, recording: RecordingLike | None):
     if setup.intrinsics is not None:
-        from rigcal.io.intrinsics import read_intrinsics
+        from rigcal.io.config.intrinsics import read_intrinsics
 
         return read_intrinsics(setup.intrinsics)
     if recording is None or not hasattr(recording, "camera_info"):
@@ -119,7 +119,7 @@ def _camera_model(setup: SensorSetup, rig: DetectionRig, recording: RecordingLik
             f"{rig.source}: sensor '{setup.name}': camera_info_topic needs a bag recording "
             "(a folder recording has no CameraInfo); give intrinsics (a file) instead"
         )
-    from rigcal.io.intrinsics import camera_from_info
+    from rigcal.io.config.intrinsics import camera_from_info
 
     where = f"{rig.source}: sensor '{setup.name}': camera_info_topic {setup.camera_info_topic}"
     try:

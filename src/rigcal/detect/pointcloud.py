@@ -407,6 +407,35 @@ def board_candidates(
     return [t[2] for t in scored]
 
 
+def segment_board(
+    points: np.ndarray,
+    indices: np.ndarray,
+    board: BoardGeometry,
+    up: np.ndarray,
+    rng: np.random.Generator,
+    cfg: BoardDetectorConfig,
+    min_points: int | None = None,
+) -> tuple[np.ndarray, list[BoardSegment]]:
+    """Step 2 of both point-cloud detectors: ``points`` (the cloud's rows ``indices``) without
+    the ground (when ``cfg.remove_ground``), then the board candidates among the rest
+    (:func:`board_candidates`, at least ``min_points`` each, default ``cfg.min_board_points``).
+    Returns the indices that are left and the candidates over them; StepFailed if none."""
+    if cfg.remove_ground:
+        above, _ = remove_ground(
+            points, up, rng, threshold_m=cfg.ground_threshold_m,
+            max_angle_deg=cfg.ground_max_angle_deg, iterations=cfg.ground_iterations,
+        )
+        indices, points = indices[above], points[above]
+    candidates = board_candidates(
+        points, board, rng, cell_m=cfg.cluster_cell_m,
+        min_points=cfg.min_board_points if min_points is None else min_points,
+        plane_threshold_m=cfg.plane_threshold_m, plane_iterations=cfg.plane_iterations,
+        size_tolerance_m=cfg.size_tolerance_m, check_size=cfg.check_board_size,
+        allow_partial=cfg.allow_partial_board,
+    )
+    return indices, candidates
+
+
 def rings_from_elevation(points: np.ndarray, gap_deg: float) -> np.ndarray:
     """(N,) ring labels of lidar points from their elevation angles: sorted elevations split
     wherever consecutive values differ by more than ``gap_deg``."""

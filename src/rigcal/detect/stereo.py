@@ -42,7 +42,6 @@ from rigcal.detect.pointcloud import (
     BoardSegment,
     HoleParams,
     StepFailed,
-    board_candidates,
     board_frame,
     box_mask,
     check_axis,
@@ -50,7 +49,7 @@ from rigcal.detect.pointcloud import (
     check_positive,
     find_hole_square,
     rays_to_plane,
-    remove_ground,
+    segment_board,
 )
 from rigcal.detect.result import BoardDetection, DetectionFailure, DetectionResult
 from rigcal.errors import ConfigError, GeometryError
@@ -250,23 +249,11 @@ def _segment(frame: PointCloudFrame, board: BoardGeometry, cfg: StereoDetectorCo
         idx = np.nonzero(usable)[0]
         if idx.size > cfg.max_segment_points:
             idx = np.sort(rng.choice(idx, cfg.max_segment_points, replace=False))
-    q = pts[idx]
-    if cfg.remove_ground:
-        above, _ = remove_ground(
-            q, up, rng, threshold_m=cfg.ground_threshold_m, max_angle_deg=cfg.ground_max_angle_deg,
-            iterations=cfg.ground_iterations,
-        )
-        idx, q = idx[above], q[above]
     min_seg = cfg.min_board_points
     if organised:  # the board's points were thinned by stride^2
         min_seg = max(10, int(cfg.min_board_points / (stride * stride)))
     try:
-        cands = board_candidates(
-            q, board, rng, cell_m=cfg.cluster_cell_m, min_points=min_seg,
-            plane_threshold_m=cfg.plane_threshold_m, plane_iterations=cfg.plane_iterations,
-            size_tolerance_m=cfg.size_tolerance_m, check_size=cfg.check_board_size,
-            allow_partial=cfg.allow_partial_board,
-        )
+        idx, cands = segment_board(pts[idx], idx, board, up, rng, cfg, min_seg)
     except StepFailed as exc:
         return exc
     return pts, usable, idx, cands, up, rng

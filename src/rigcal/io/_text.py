@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 import os
 from pathlib import Path
-from typing import Any
+from typing import Any, Mapping, Sequence
 
 import yaml
 
@@ -136,3 +136,20 @@ def type_name(value: Any) -> str:
         list: "a list",
         dict: "a mapping",
     }.get(type(value), type(value).__name__)
+
+
+def check_keys(value: Mapping[Any, Any], allowed: Sequence[str], where: str) -> None:
+    """InputError naming every key of ``value`` that is not in ``allowed`` (and the allowed)."""
+    unknown = [str(k) for k in value if k not in allowed]
+    if unknown:
+        raise InputError(
+            f"{where}: unknown key(s) {', '.join(repr(k) for k in unknown)} "
+            f"(allowed: {', '.join(allowed)})"
+        )
+
+
+def nonempty_string(value: Any, where: str) -> str:
+    """``value`` if it is a string with more than white space in it; else InputError."""
+    if not isinstance(value, str) or not value.strip():
+        raise InputError(f"{where}: expected a non-empty string, got {type_name(value)} {value!r}")
+    return value

@@ -38,8 +38,8 @@ reads ``/tf`` (and ``/tf_static``), composing the chain up to ``tf_parent`` (def
 Sensors: ``lidar`` (``sigma_m`` [m], optional ``vertical_step_deg``, ``horizontal_step_deg``,
 ``min_range_m``, ``max_range_m``, ``elevation_fov_deg: [lo, hi]``, ``azimuth_fov_deg: [lo,
 hi]``; defaults: a VLP-16) or ``camera`` (``intrinsics``: any camera file
-:func:`rigcal.io.camchain.read_camera_file` reads; ``camera`` names one camera of a multi-camera
-file; ``sigma_px`` [px]). ``frame_id`` (default: the name) is the sensor's frame in the initial
+:func:`rigcal.io.config.camchain.read_camera_file` reads; ``camera`` names one camera of a
+multi-camera file; ``sigma_px`` [px]). ``frame_id`` (default: the name) is the sensor's frame in the initial
 calibration, which must connect it to ``robot_frame``.
 
 :func:`parse_mocap_config` reads the referenced target definitions, intrinsics and initial
@@ -62,8 +62,8 @@ from rigcal.dataset import SensorKind
 from rigcal.errors import InputError
 from rigcal.extract.guidance import PoseUncertainty
 from rigcal.extract.lidar import LidarSpec
-from rigcal.io._text import is_finite_number, load_yaml, read_text, type_name
-from rigcal.io.manifest import check_sensor_name
+from rigcal.io._text import check_keys, is_finite_number, load_yaml, read_text, type_name
+from rigcal.io.dataset.manifest import check_sensor_name
 from rigcal.mocap.extrinsics import Extrinsics
 from rigcal.mocap.streams import DEFAULT_MAX_GAP_S
 from rigcal.problem.mocap import MocapOptions
@@ -96,15 +96,6 @@ _CAMERA_TARGET_KINDS = (TargetKind.CHECKERBOARD_DIAMOND, TargetKind.CYLINDER)
 
 # --------------------------------------------------------------------------------------------
 # small checks
-
-
-def _check_keys(value: Mapping[Any, Any], allowed: tuple[str, ...], where: str) -> None:
-    unknown = [str(k) for k in value if k not in allowed]
-    if unknown:
-        raise InputError(
-            f"{where}: unknown key(s) {', '.join(repr(k) for k in unknown)} "
-            f"(allowed: {', '.join(allowed)})"
-        )
 
 
 def _mapping(value: Any, where: str, what: str = "a mapping") -> dict:
@@ -343,7 +334,7 @@ def _target_definition(name: Any, raw: Any, where: str, base_dir: Path) -> Targe
         raise InputError(f"{where}: target names must be non-empty strings, got {name!r}")
     where = f"{where}.{name}"
     raw = _mapping(raw, where, "a mapping with a pose source and a definition or analytic")
-    _check_keys(raw, _TARGET_KEYS, where)
+    check_keys(raw, _TARGET_KEYS, where)
     pose = _pose_source(raw, where, base_dir)
     if ("definition" in raw) == ("analytic" in raw):
         raise InputError(f"{where}: give exactly one of 'definition' (a target JSON file) or "
@@ -370,7 +361,7 @@ def _target_definition(name: Any, raw: Any, where: str, base_dir: Path) -> Targe
     template = (_file(raw["template"], f"{where}.template", base_dir, "template cloud")
                 if "template" in raw else None)
     kind = (TargetKind.parse(raw["kind"], f"{where}.kind") if "kind" in raw else None)
-    from rigcal.io.vicon_json import read_vicon_target
+    from rigcal.io.config.vicon_json import read_vicon_target
 
     try:
         target = read_vicon_target(path, name=name, kind=kind, template=template, dims=dims)
@@ -404,7 +395,7 @@ def _camera_model(raw: dict, name: str, frame_id: str, where: str, base_dir: Pat
     if "intrinsics" not in raw:
         raise InputError(f"{where}: a camera needs 'intrinsics' (a camera file)")
     path = _file(raw["intrinsics"], f"{where}.intrinsics", base_dir, "intrinsics file")
-    from rigcal.io.camchain import read_camera_file
+    from rigcal.io.config.camchain import read_camera_file
 
     try:
         chain = read_camera_file(path)
@@ -440,7 +431,7 @@ def _sensor(i: int, raw: Any, source: str, base_dir: Path) -> SensorSpec:
         raise InputError(f"{where}.kind: unknown sensor kind '{raw['kind']}' for mocap "
                          "calibration (expected lidar or camera)")
     kind = SensorKind(kind_text)
-    _check_keys(raw, _LIDAR_KEYS if kind is SensorKind.LIDAR else _CAMERA_KEYS, where)
+    check_keys(raw, _LIDAR_KEYS if kind is SensorKind.LIDAR else _CAMERA_KEYS, where)
     topic = _string(raw["topic"], f"{where}.topic")
     frame_id = _string(raw["frame_id"], f"{where}.frame_id") if "frame_id" in raw else name
     if kind is SensorKind.LIDAR:
@@ -455,7 +446,7 @@ def _extraction(raw: Any, source: str) -> ExtractionSettings:
     where = f"{source}: extraction"
     raw = _mapping(raw, where)
     names = tuple(f.name for f in fields(ExtractionSettings))
-    _check_keys(raw, names, where)
+    check_keys(raw, names, where)
     kw: dict[str, Any] = {}
     for key, value in raw.items():
         w = f"{where}.{key}"
@@ -485,7 +476,7 @@ def _options(raw: Any, source: str) -> MocapOptions:
     where = f"{source}: options"
     raw = _mapping(raw, where)
     names = tuple(f.name for f in fields(MocapOptions))
-    _check_keys(raw, names, where)
+    check_keys(raw, names, where)
     defaults = MocapOptions()
     kw: dict[str, Any] = {}
     for key, value in raw.items():
@@ -525,7 +516,7 @@ def _options(raw: Any, source: str) -> MocapOptions:
 
 def read_initial_calibration(path: str | os.PathLike[str]) -> Extrinsics:
     """Initial extrinsics from the original tool's extrinsics JSON (``{to_frame, from_frame,
-    transform}`` entries) or a calibration YAML (:mod:`rigcal.io.calibration_files`: the
+    transform}`` entries) or a calibration YAML (:mod:`rigcal.io.results.calibration_files`: the
     original tool's per-sensor YAML, a rigcal ``calibration.yaml`` or ``absolute.yaml``),
     chosen by content."""
     from rigcal.mocap.extrinsics import parse_extrinsics_json
@@ -534,7 +525,7 @@ def read_initial_calibration(path: str | os.PathLike[str]) -> Extrinsics:
     text = read_text(p, "initial calibration")
     if text.lstrip().startswith(("{", "[")):
         return parse_extrinsics_json(text, str(p))
-    from rigcal.io.calibration_files import parse_calibration_transforms
+    from rigcal.io.results.calibration_files import parse_calibration_transforms
 
     cal = parse_calibration_transforms(text, str(p))
     return Extrinsics({(cal.parent_frame, child): T for child, T in cal.transforms.items()},
@@ -547,7 +538,7 @@ def parse_mocap_config(text: str, source: str, base_dir: str | os.PathLike[str])
     base = Path(base_dir)
     data = load_yaml(text, source)
     data = _mapping(data, source, "a mapping with recording, mocap, robot_frame, sensors")
-    _check_keys(data, _TOP_KEYS, source)
+    check_keys(data, _TOP_KEYS, source)
     for key in ("recording", "mocap", "robot_frame", "sensors"):
         if key not in data:
             raise InputError(f"{source}: missing required key '{key}' (required: recording, "
@@ -558,12 +549,12 @@ def parse_mocap_config(text: str, source: str, base_dir: str | os.PathLike[str])
         raise InputError(f"{source}: recording: not found: {recording}")
 
     mocap = _mapping(data["mocap"], f"{source}: mocap", "a mapping with robot and targets")
-    _check_keys(mocap, _MOCAP_KEYS, f"{source}: mocap")
+    check_keys(mocap, _MOCAP_KEYS, f"{source}: mocap")
     for key in ("robot", "targets"):
         if key not in mocap:
             raise InputError(f"{source}: mocap: missing required key '{key}'")
     robot_raw = _mapping(mocap["robot"], f"{source}: mocap.robot", "a pose source mapping")
-    _check_keys(robot_raw, _POSE_KEYS, f"{source}: mocap.robot")
+    check_keys(robot_raw, _POSE_KEYS, f"{source}: mocap.robot")
     robot = _pose_source(robot_raw, f"{source}: mocap.robot", base)
     targets_raw = _mapping(mocap["targets"], f"{source}: mocap.targets",
                            "a mapping target name -> {pose source, definition}")
@@ -617,7 +608,7 @@ def parse_mocap_config(text: str, source: str, base_dir: str | os.PathLike[str])
                          "(there is no /tf_static to read)")
 
     report = _mapping(data.get("report") or {}, f"{source}: report")
-    _check_keys(report, _REPORT_KEYS, f"{source}: report")
+    check_keys(report, _REPORT_KEYS, f"{source}: report")
     overlays = report.get("overlays_per_sensor", 3)
     if not isinstance(overlays, int) or isinstance(overlays, bool) or overlays < 0:
         raise InputError(f"{source}: report.overlays_per_sensor: expected an integer >= 0, got "

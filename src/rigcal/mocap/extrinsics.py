@@ -207,7 +207,7 @@ class Extrinsics:
 
 def parse_extrinsics_json(text: str, source: str = "extrinsics JSON") -> Extrinsics:
     """Extrinsics from the original tool's JSON text (see the module docstring)."""
-    from rigcal.io.vicon_json import load_json
+    from rigcal.io.config.vicon_json import load_json
 
     data = load_json(text, source)
     metadata: dict[str, Any] = {}
@@ -297,7 +297,7 @@ def read_extrinsics_from_bag(path: str | os.PathLike[str],
     simulated bags publish ground-truth calibrations) are kept only when they never change over
     the bag (every matrix entry within ``constant_tol_m`` of the first); moving transforms such
     as mocap poses are skipped and logged."""
-    from rigcal.io.bag import open_recording
+    from rigcal.io.recordings.bag import open_recording
     from rigcal.mocap.streams import _read_tf_edges, _tf_topics
 
     with open_recording(path) as rec:

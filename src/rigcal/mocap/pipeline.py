@@ -32,7 +32,7 @@ holds) or whose measurements leave its pose undetermined is *not calibrated*: th
 calibrated without it and it is reported with its reason (``MocapRun.not_calibrated``,
 ``CalibrationResult.not_calibrated``); only when no sensor is left is it an error, listing every
 reason. A target no sensor measured is an InputError that lists the rejection reasons. :func:`write_mocap_outputs` writes the result files
-(:func:`rigcal.io.results.write_results`), ``extrinsics.json`` (the original tool's format,
+(:func:`rigcal.io.results.calibration.write_results`), ``extrinsics.json`` (the original tool's format,
 ``robot_frame`` <- ``frame_id``), ``diagnostics.csv`` (one row per frame and target) and
 overlay images (:mod:`rigcal.report.overlay`).
 """
@@ -202,7 +202,7 @@ def read_mocap_streams(config: MocapConfig) -> tuple[PoseStream, dict[str, PoseS
     streams: dict[str, PoseStream] = {}
     topics = {k: s.topic for k, (_, s) in specs.items() if s.kind == "topic"}
     if topics:
-        from rigcal.io.bag import open_recording
+        from rigcal.io.recordings.bag import open_recording
         from rigcal.mocap.streams import POSE_MSGTYPES, read_pose_topics
 
         with open_recording(config.recording) as rec:
@@ -507,7 +507,7 @@ def _close(A: np.ndarray, B: np.ndarray) -> bool:
 def _extract_all(config: MocapConfig, ctx: _Context, sensors: dict[str, SensorSpec],
                  progress: Callable[[int, int], None] | None):
     """One pass over the recording's frames of ``sensors`` with the guidance in ``ctx``."""
-    from rigcal.io.folder import open_any
+    from rigcal.io.recordings.open_any import open_any
 
     diagnostics: list[MeasurementDiagnostic] = []
     observations: list[TargetObservation] = []
@@ -876,7 +876,7 @@ def summary_rows(run: MocapRun) -> list[tuple]:
 
 def write_mocap_outputs(run: MocapRun, out_dir: str | os.PathLike[str],
                         max_overlays: int | None = None) -> list[Path]:
-    """Write the result files (:func:`rigcal.io.results.write_results`), ``extrinsics.json``
+    """Write the result files (:func:`rigcal.io.results.calibration.write_results`), ``extrinsics.json``
     (``robot_frame`` <- each sensor's ``frame_id``, the original tool's layout),
     ``diagnostics.csv`` and up to ``max_overlays`` (default: the configuration's
     ``overlays_per_sensor``) overlay PNGs per sensor in ``overlays/``; every file atomically.
@@ -884,7 +884,7 @@ def write_mocap_outputs(run: MocapRun, out_dir: str | os.PathLike[str],
     lists it under ``not_calibrated`` with the reason) but its rows in ``diagnostics.csv``.
     Returns the written paths."""
     from rigcal.io.atomic import atomic_write_text
-    from rigcal.io.results import write_results
+    from rigcal.io.results.calibration import write_results
     from rigcal.mocap.extrinsics import write_extrinsics_json
     from rigcal.report.overlay import write_overlays
 

@@ -749,7 +749,7 @@ def read_tf_streams(path: str | os.PathLike[str],
     InputError when a topic is missing or not a TFMessage, a frame is unknown (known child
     frames are listed), has no moving transform in its chain, does not reach ``mocap_frame``,
     or has two parents."""
-    from rigcal.io.bag import open_recording
+    from rigcal.io.recordings.bag import open_recording
 
     _check_max_gap(max_gap_s)
     wanted = dict(children) if isinstance(children, Mapping) else {str(c): c for c in children}
@@ -830,7 +830,7 @@ def read_pose_topics(path: str | os.PathLike[str],
     PoseStamped (``pose``), PoseWithCovarianceStamped and Odometry (``pose.pose``); each gives
     ``T_<header.frame_id>_<body>``. The stream's ``frame_id`` is the messages' header frame id,
     which must be the same for every message of a topic."""
-    from rigcal.io.bag import open_recording
+    from rigcal.io.recordings.bag import open_recording
 
     wanted = dict(topics) if isinstance(topics, Mapping) else {
         str(t).lstrip("/") or str(t): t for t in topics}
@@ -882,7 +882,7 @@ class PoseSources(NamedTuple):
 def list_pose_sources(path: str | os.PathLike[str],
                       static_topics: Sequence[str] = ("/tf_static",)) -> PoseSources:
     """The TF frames and pose topics in a bag (reads every TFMessage once)."""
-    from rigcal.io.bag import open_recording
+    from rigcal.io.recordings.bag import open_recording
 
     with open_recording(path) as rec:
         source = str(rec.path)

@@ -189,7 +189,7 @@ def paper_targets(data_dir: str | os.PathLike[str] | None = None, resolution_m: 
     ``CylinderTarget.json`` in ``data_dir`` (default: ``$RIGCAL_VICON_SIM_DIR`` or a
     ``shared/data/vicon_sim`` folder next to the working directory or the package), else from
     the documented defaults (the same dimensions). ``resolution_m``: template sampling step."""
-    from rigcal.io.vicon_json import read_vicon_target
+    from rigcal.io.config.vicon_json import read_vicon_target
 
     d = Path(data_dir) if data_dir is not None else _default_data_dir()
     notes = []

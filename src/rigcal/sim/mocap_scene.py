@@ -10,9 +10,9 @@ have:
   :func:`rigcal.sim.mocap.cast_lidar`) and every camera's ``sensor_msgs/Image`` frames
   (rendered: :func:`rigcal.sim.mocap.render_image`, any camera model) at ``sensor_hz``;
 * ``diamond.json`` - the target definition (the original tool's format,
-  :func:`rigcal.io.vicon_json.write_vicon_target`);
+  :func:`rigcal.io.config.vicon_json.write_vicon_target`);
 * ``<camera>.yaml`` - each camera's intrinsics as a Kalibr camchain
-  (:func:`rigcal.io.camchain.format_camchain`);
+  (:func:`rigcal.io.config.camchain.format_camchain`);
 * ``initial.json`` - the initial calibration (the original tool's extrinsics JSON,
   ``robot_frame`` <- each sensor's ``frame_id``): the truth perturbed uniformly by up to
   ``perturbation[0]`` metres and ``perturbation[1]`` degrees per axis (3 cm and 5 deg, as in
@@ -134,7 +134,7 @@ class SceneSensor:
     sigma: float | None = None
 
     def __post_init__(self) -> None:
-        from rigcal.io.manifest import check_sensor_name
+        from rigcal.io.dataset.manifest import check_sensor_name
 
         check_sensor_name(self.name, "SceneSensor.name")
         where = f"SceneSensor '{self.name}'"
@@ -382,7 +382,7 @@ def _check_sensors(sensors: Sequence[SceneSensor]) -> tuple[SceneSensor, ...]:
 
 
 def _transform_msg(store: Any, t_ns: int, parent: str, child: str, T: np.ndarray) -> Any:
-    from rigcal.io.pointcloud2 import make_header
+    from rigcal.io.recordings.pointcloud2 import make_header
     from rigcal.mocap.streams import matrix_to_quat_xyzw
 
     q = matrix_to_quat_xyzw(T[:3, :3])
@@ -396,7 +396,7 @@ def _transform_msg(store: Any, t_ns: int, parent: str, child: str, T: np.ndarray
 
 
 def _image_msg(store: Any, t_ns: int, img: np.ndarray, frame_id: str) -> Any:
-    from rigcal.io.pointcloud2 import make_header
+    from rigcal.io.recordings.pointcloud2 import make_header
 
     return store.types["sensor_msgs/msg/Image"](
         header=make_header(store, t_ns, frame_id), height=img.shape[0], width=img.shape[1],
@@ -496,9 +496,9 @@ def write_mocap_scene(
     from rosbags.typesys import Stores, get_typestore
 
     from rigcal.io.atomic import atomic_write_text
-    from rigcal.io.camchain import Camchain, format_camchain
-    from rigcal.io.pointcloud2 import encode_pointcloud2
-    from rigcal.io.vicon_json import write_vicon_target
+    from rigcal.io.config.camchain import Camchain, format_camchain
+    from rigcal.io.recordings.pointcloud2 import encode_pointcloud2
+    from rigcal.io.config.vicon_json import write_vicon_target
     from rigcal.mocap import Extrinsics, write_extrinsics_json
     from rigcal.recording import PointCloudFrame
 

@@ -15,7 +15,7 @@ Charron et al. (section III) make the calibration target-agnostic: a target is k
 All coordinates are metres in the target frame, the frame the motion capture system tracks
 (``T_M_T`` maps target-frame points into the mocap frame). Analytic targets are built in
 :mod:`rigcal.targets.templates`; the original tool's JSON files are read by
-:mod:`rigcal.io.vicon_json`.
+:mod:`rigcal.io.config.vicon_json`.
 """
 
 from __future__ import annotations

@@ -36,21 +36,18 @@ from rigcal.sim.raw.camera import PinholeRadtanCamera, StereoCamera, render, ren
 from rigcal.sim.raw.lidar import LidarModel, hdl64e, scan, vlp16
 from rigcal.sim.raw.radar import RadarModel, automotive_2d, detections
 from rigcal.sim.raw.scene import Scene, _check_rigid
-from rigcal.sim.rig import RIG_FRAME, SimSensor, make_rig_placements, prius_like_rig, visible
+from rigcal.sim.rig import (
+    RIG_FRAME,
+    SimSensor,
+    _as_rng,
+    make_rig_placements,
+    prius_like_rig,
+    visible,
+)
 
 SensorModel = Union[LidarModel, PinholeRadtanCamera, StereoCamera, RadarModel]
 
 DEFAULT_RATE_HZ = {"lidar": 10.0, "camera": 10.0, "stereo": 10.0, "radar": 13.0, "radar3d": 13.0}
-
-
-def _as_rng(rng: np.random.Generator | int) -> np.random.Generator:
-    if isinstance(rng, np.random.Generator):
-        return rng
-    if isinstance(rng, (int, np.integer)) and not isinstance(rng, bool):
-        return np.random.default_rng(int(rng))
-    raise InputError(
-        f"rng must be a numpy.random.Generator or an int seed, got {type(rng).__name__}"
-    )
 
 
 # --------------------------------------------------------------------------- sensors

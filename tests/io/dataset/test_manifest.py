@@ -10,8 +10,8 @@ import pytest
 
 from rigcal.dataset import BoardGeometry, Dataset, SensorDetections, SensorKind
 from rigcal.errors import InputError
-from rigcal.io.detections_csv import format_detections_csv
-from rigcal.io.manifest import (
+from rigcal.io.dataset.detections_csv import format_detections_csv
+from rigcal.io.dataset.manifest import (
     dataset_from_files,
     load_manifest,
     load_manifest_with_ignored,
@@ -19,7 +19,7 @@ from rigcal.io.manifest import (
     write_dataset,
 )
 
-SHARED = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "tudelft_prius"
+SHARED = Path(__file__).resolve().parents[3].parent / "shared" / "data" / "tudelft_prius"
 
 K = 5
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from rigcal.errors import InputError
-from rigcal.io.camchain import (
+from rigcal.io.config.camchain import (
     Camchain,
     format_camchain,
     parse_camchain_text,
@@ -24,7 +24,7 @@ from rigcal.sensors.camera.kannala_brandt import KannalaBrandtCamera
 from rigcal.sensors.camera.pinhole import PinholeCamera
 from rigcal.sensors.camera.radtan import RadtanCamera
 
-VICON = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "vicon_sim"
+VICON = Path(__file__).resolve().parents[3].parent / "shared" / "data" / "vicon_sim"
 
 CAMCHAIN = """\
 cam0:

@@ -96,8 +96,8 @@ _INFO_MODELS = {  # distortion_model -> (rigcal model, D sizes accepted)
 
 
 def camera_from_info(info: Any, source: str) -> CameraModel:
-    """The camera model of a ``sensor_msgs/CameraInfo`` (:class:`rigcal.io.bag.CameraInfo`):
-    ``K`` (fx, fy, cx, cy; no skew), ``D`` and ``distortion_model``, ``width``/``height``.
+    """The camera model of a ``sensor_msgs/CameraInfo``
+    (:class:`rigcal.io.recordings.bag.CameraInfo`): ``K`` (fx, fy, cx, cy; no skew), ``D`` and ``distortion_model``, ``width``/``height``.
 
     ``plumb_bob`` (k1 k2 p1 p2 [k3]; an empty D is no distortion) -> radtan; ``equidistant``
     (k1 k2 k3 k4) -> kannala_brandt; ``rational_polynomial`` (k1 k2 p1 p2 k3 k4 k5 k6 [...])

@@ -9,13 +9,13 @@ import pytest
 
 from rigcal.dataset import SensorKind
 from rigcal.errors import InputError
-from rigcal.io.accumulator import (
+from rigcal.io.dataset.accumulator import (
     accumulator_points_for_kind,
     parse_accumulator_yaml,
     read_accumulator_yaml,
 )
 
-SHARED = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "tudelft_prius"
+SHARED = Path(__file__).resolve().parents[3].parent / "shared" / "data" / "tudelft_prius"
 
 GOOD = """
 /lidar:

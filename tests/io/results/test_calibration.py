@@ -15,7 +15,7 @@ import rigcal
 from rigcal.dataset import SensorKind
 from rigcal.errors import InputError
 from rigcal.geometry import matrix_from_rpy, so3_exp
-from rigcal.io.results import (
+from rigcal.io.results.calibration import (
     original_sensor_yaml_text,
     result_to_json_text,
     result_to_yaml_text,

@@ -11,14 +11,14 @@ import pytest
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from rigcal.errors import InputError
-from rigcal.io.bag import (
+from rigcal.io.recordings.bag import (
     CameraInfo,
     decode_compressed_image_msg,
     decode_image_msg,
     open_recording,
     write_recording,
 )
-from rigcal.io.pointcloud2 import decode_pointcloud2, encode_pointcloud2, make_header
+from rigcal.io.recordings.pointcloud2 import decode_pointcloud2, encode_pointcloud2, make_header
 from rigcal.recording import ImageFrame, PointCloudFrame, RadarFrame, StereoFrame
 
 ROS1 = get_typestore(Stores.ROS1_NOETIC)

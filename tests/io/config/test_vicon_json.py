@@ -12,7 +12,7 @@ from scipy.spatial import cKDTree
 
 from rigcal.errors import InputError
 from rigcal.io.pointcloud import read_point_cloud
-from rigcal.io.vicon_json import (
+from rigcal.io.config.vicon_json import (
     OptimizerConfig,
     optimizer_config_json_text,
     parse_optimizer_config,
@@ -26,7 +26,7 @@ from rigcal.targets.definition import TargetKind
 from rigcal.targets.surface import surface_distance_m
 from rigcal.targets.templates import cylinder_target, diamond_target
 
-DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "vicon_sim"
+DATA = Path(__file__).resolve().parents[3].parent / "shared" / "data" / "vicon_sim"
 
 
 def shared(name: str) -> Path:

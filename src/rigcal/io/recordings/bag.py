@@ -44,10 +44,10 @@ import numpy as np
 
 from rigcal.dataset import SensorKind
 from rigcal.errors import InputError
-from rigcal.io.folder import decode_image_bytes
 from rigcal.io.limits import os_error_text
 from rigcal.io.pointcloud import radar_frame_from_cloud
-from rigcal.io.pointcloud2 import (
+from rigcal.io.recordings.images import decode_image_bytes, encode_png
+from rigcal.io.recordings.pointcloud2 import (
     decode_pointcloud2,
     encode_pointcloud2,
     make_header,
@@ -494,14 +494,10 @@ def _image_msg(frame: ImageFrame, typestore: Any) -> Any:
 
 
 def _compressed_image_msg(frame: ImageFrame, typestore: Any, topic: str) -> Any:
-    import cv2
-
-    ok, buf = cv2.imencode(".png", np.ascontiguousarray(frame.image))
-    if not ok:
-        raise InputError(f"topic {topic}: cannot PNG-encode image of sensor '{frame.sensor}'")
+    png = encode_png(frame.image, f"topic {topic}, sensor '{frame.sensor}'")
     return typestore.types[COMPRESSED_IMAGE](
         header=make_header(typestore, frame.t_ns, frame.frame_id), format="png",
-        data=np.asarray(buf, dtype=np.uint8).reshape(-1),
+        data=np.frombuffer(png, dtype=np.uint8).copy(),
     )
 
 

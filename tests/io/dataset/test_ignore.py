@@ -7,7 +7,7 @@ import pytest
 
 from rigcal.dataset import Dataset, SensorDetections, SensorKind
 from rigcal.errors import InputError
-from rigcal.io.ignore import parse_ignore_yaml, read_ignore_file
+from rigcal.io.dataset.ignore import parse_ignore_yaml, read_ignore_file
 
 
 def make_dataset(num_boards: int = 5) -> Dataset:

@@ -6,7 +6,7 @@
   ``covariance``; floats at full precision (``repr``), so a read gives back the same numbers.
   JSON is strict: NaN and infinities become ``null``.
 * launch files: ROS 1 ``absolute.launch`` and ROS 2 ``absolute.launch.py`` (or ``.sh``, YAML,
-  JSON) through :mod:`rigcal.io.tf_export`, one static transform per sensor frame with the
+  JSON) through :mod:`rigcal.io.results.tf_export`, one static transform per sensor frame with the
   body frame as the parent (default ``base_link``; ``parent_frame`` renames it).
 
 :func:`read_absolute_yaml` / :func:`parse_absolute_yaml` read ``absolute.yaml`` (or the JSON)
@@ -29,13 +29,13 @@ from rigcal.absolute.result import AbsoluteResult
 from rigcal.errors import InputError
 from rigcal.io._text import load_yaml, read_text, type_name
 from rigcal.io.atomic import atomic_write_text, mark_output
-from rigcal.io.tf_export import (
+from rigcal.io.results.tf_export import (
     ros1_launch_text,
     ros2_launch_py_text,
     ros2_run_commands,
     write_tf_export,
 )
-from rigcal.io.urdf import check_rigid
+from rigcal.io.results.urdf import check_rigid
 
 __all__ = [
     "ABSOLUTE_JSON_NAME",
@@ -213,7 +213,8 @@ def write_absolute_launch(
 ) -> Path:
     """One static-transform export of every sensor's ``T_body_sensor`` with the body frame as
     the parent (``parent_frame`` overrides the result's name); ``fmt`` one of ros1, ros2, sh,
-    yaml, json (default: from the file name, see :func:`rigcal.io.tf_export.write_tf_export`)."""
+    yaml, json (default: from the file name, see
+    :func:`rigcal.io.results.tf_export.write_tf_export`)."""
     parent = _parent(result, parent_frame)
     return write_tf_export(path, body_transforms(result, parent), parent, fmt)
 

@@ -8,14 +8,14 @@ import numpy as np
 import pytest
 
 from rigcal.errors import InputError
-from rigcal.io.intrinsics import (
+from rigcal.io.config.intrinsics import (
     parse_camera_info_yaml_text,
     parse_intrinsics_ini_text,
     read_intrinsics,
 )
 from rigcal.sensors.camera import RadtanCamera
 
-MONO = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "tudelft_prius" / "mono"
+MONO = Path(__file__).resolve().parents[3].parent / "shared" / "data" / "tudelft_prius" / "mono"
 
 K = [[1419.435287, 0.0, 948.748187], [0.0, 1442.298159, 621.179140], [0.0, 0.0, 1.0]]
 D = [-0.175243, 0.158967, 0.003024, -0.002257, -0.062404]

@@ -40,7 +40,7 @@ import numpy as np
 
 from rigcal.dataset import SensorKind
 from rigcal.errors import InputError
-from rigcal.io.limits import MAX_ABS, os_error_text, path_stat, read_limited
+from rigcal.io.limits import MAX_ABS, path_stat, read_limited
 from rigcal.io._text import read_text
 from rigcal.io.atomic import atomic_write_bytes, atomic_write_text
 from rigcal.io.pointcloud import (
@@ -51,12 +51,11 @@ from rigcal.io.pointcloud import (
     radar_frame_from_cloud,
     read_point_cloud,
 )
+from rigcal.io.recordings.images import IMAGE_SUFFIXES, decode_image_bytes, encode_png
 from rigcal.recording import Frame, ImageFrame, PointCloudFrame, RadarFrame
 
 __all__ = [
     "FolderRecording",
-    "decode_image_bytes",
-    "open_any",
     "open_folder",
     "parse_radar_csv",
     "radar_csv_text",
@@ -67,7 +66,6 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 RADAR_SUFFIXES = (".csv",)
 _CONTENT = {**{s: "points" for s in POINT_CLOUD_SUFFIXES},
             **{s: "image" for s in IMAGE_SUFFIXES}, **{s: "radar_csv" for s in RADAR_SUFFIXES}}
@@ -75,29 +73,6 @@ _CONTENT = {**{s: "points" for s in POINT_CLOUD_SUFFIXES},
 
 # --------------------------------------------------------------------------------------------
 # pure parsers
-
-
-def decode_image_bytes(data: bytes | bytearray | memoryview, source: str) -> np.ndarray:
-    """A PNG/JPEG (any format OpenCV reads) as uint8 (H, W) mono or (H, W, 3) BGR; alpha is
-    dropped. 16-bit or undecodable images raise InputError naming ``source``."""
-    import cv2
-
-    buf = np.frombuffer(data, dtype=np.uint8)
-    if buf.size == 0:
-        raise InputError(f"{source}: empty image data")
-    img = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise InputError(f"{source}: cannot decode image (not a PNG or JPEG?)")
-    if img.dtype != np.uint8:
-        raise InputError(f"{source}: image has {img.dtype} pixels, expected 8-bit")
-    if img.ndim == 3:
-        if img.shape[2] == 1:
-            img = img[:, :, 0]
-        elif img.shape[2] == 4:
-            img = img[:, :, :3]
-        elif img.shape[2] != 3:
-            raise InputError(f"{source}: image has {img.shape[2]} channels, expected 1, 3 or 4")
-    return np.ascontiguousarray(img)
 
 
 def time_ns_from_name(stem: str) -> int | None:
@@ -196,7 +171,7 @@ def _kind(value: SensorKind | str, where: str) -> SensorKind:
 
 class FolderRecording:
     """An open folder recording (a context manager; nothing to release, for symmetry with
-    :class:`rigcal.io.bag.Recording`)."""
+    :class:`rigcal.io.recordings.bag.Recording`)."""
 
     def __init__(self, root: Path) -> None:
         self.path = root
@@ -324,54 +299,15 @@ class FolderRecording:
         return cloud
 
 
-def _stat(p: Path, what: str) -> os.stat_result | None:
-    return path_stat(p, what)
-
-
-_ROS2_STORAGE = (".db3", ".mcap")
-
-
 def open_folder(path: str | os.PathLike[str]) -> FolderRecording:
     """Open a folder recording (see the module docstring)."""
     root = Path(path)
-    st = _stat(root, "recording folder")
+    st = path_stat(root, "recording folder")
     if st is None:
         raise InputError(f"{root}: recording folder not found")
     if not stat.S_ISDIR(st.st_mode):
         raise InputError(f"{root}: not a folder (a folder recording has one subfolder per sensor)")
     return FolderRecording(root)
-
-
-def open_any(path: str | os.PathLike[str]) -> Any:
-    """A bag (``.bag``/``.db3``/``.mcap`` file, or a directory with ``metadata.yaml``) via
-    :func:`rigcal.io.bag.open_recording`, else a folder recording. Both offer ``topics()``,
-    ``count(topic)`` and ``frames(sensor_topics, start_ns, end_ns)``.
-
-    A directory holding ``.db3``/``.mcap`` files but no ``metadata.yaml`` is refused as a ROS 2
-    bag with its metadata missing (not read as an empty folder recording)."""
-    p = Path(path)
-    st = _stat(p, "recording")
-    if st is None:
-        raise InputError(f"{p}: recording folder not found (expected a .bag file, a ROS 2 bag "
-                         "folder or a folder with one subfolder per sensor)")
-    if stat.S_ISDIR(st.st_mode):
-        if _stat(p / "metadata.yaml", "recording") is None:
-            try:
-                storage = sorted(c.name for c in p.iterdir()
-                                 if c.suffix.lower() in _ROS2_STORAGE and c.is_file())
-            except OSError as exc:
-                raise InputError(f"{p}: cannot list folder: {os_error_text(exc)}") from None
-            if storage:
-                shown = ", ".join(storage[:3]) + (", ..." if len(storage) > 3 else "")
-                raise InputError(
-                    f"{p}: looks like a ROS 2 bag (has {shown}) but metadata.yaml is missing; "
-                    "expected a ROS 2 bag folder with metadata.yaml (`ros2 bag reindex` "
-                    "rebuilds it), a .bag file or a folder with one subfolder per sensor"
-                )
-            return FolderRecording(p)
-    from rigcal.io.bag import open_recording
-
-    return open_recording(p)
 
 
 def write_folder_recording(
@@ -385,8 +321,6 @@ def write_folder_recording(
     subfolder per key. PointCloudFrame -> ``.pcd`` (``pcd_data``; x, y, z float32) or ``.npy``
     (lossless), ImageFrame -> ``.png``, RadarFrame -> ``.csv``. A subfolder that already holds
     frame files is refused (their frames would mix). Returns ``root``."""
-    import cv2
-
     if point_cloud_format not in ("pcd", "npy"):
         raise InputError(f"{root}: point_cloud_format must be 'pcd' or 'npy', got "
                          f"{point_cloud_format!r}")
@@ -412,10 +346,8 @@ def write_folder_recording(
                     atomic_write_bytes(folder / f"{stem}.pcd",
                                        pcd_bytes(frame, pcd_data, source=str(folder)))
             elif isinstance(frame, ImageFrame):
-                ok, buf = cv2.imencode(".png", np.ascontiguousarray(frame.image))
-                if not ok:
-                    raise InputError(f"{folder}: cannot PNG-encode the image at {frame.t_ns}")
-                atomic_write_bytes(folder / f"{stem}.png", buf.tobytes())
+                png = folder / f"{stem}.png"
+                atomic_write_bytes(png, encode_png(frame.image, str(png)))
             elif isinstance(frame, RadarFrame):
                 atomic_write_text(folder / f"{stem}.csv", radar_csv_text(frame))
             else:

@@ -16,7 +16,7 @@ from rigcal.dataset import SensorKind
 from rigcal.errors import InputError
 from rigcal.geometry import from_rt
 from rigcal.geometry.so3 import matrix_from_rpy
-from rigcal.io.absolute_io import (
+from rigcal.io.results.absolute import (
     ABSOLUTE_JSON_NAME,
     ABSOLUTE_YAML_NAME,
     LAUNCH_NAMES,

@@ -17,8 +17,8 @@ Fields of a sensor:
 * ``name`` (required): unique; no whitespace or path separators;
 * ``kind`` (required): ``lidar``, ``camera``, ``radar`` (2D) or ``radar3d``;
 * ``detections`` (required): a path relative to the manifest's directory (or absolute);
-  ``.csv`` is read by :mod:`rigcal.io.detections_csv`, ``.yaml``/``.yml`` by
-  :mod:`rigcal.io.accumulator`;
+  ``.csv`` is read by :mod:`rigcal.io.dataset.detections_csv`, ``.yaml``/``.yml`` by
+  :mod:`rigcal.io.dataset.accumulator`;
 * ``topic``: the accumulator topic; required when that file has more than one topic, refused
   for CSV files;
 * ``frame_id``: defaults to the accumulator entries' ``frame_id`` for accumulator input, else
@@ -39,7 +39,7 @@ import re
 import stat
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
-from typing import Any, Iterable, Mapping, Sequence
+from typing import Any, Iterable, Mapping
 
 import numpy as np
 import yaml
@@ -52,11 +52,18 @@ from rigcal.dataset import (
     SensorKind,
 )
 from rigcal.errors import InputError
-from rigcal.io._text import is_number, load_yaml, read_text, type_name
-from rigcal.io.accumulator import accumulator_points_for_kind, parse_accumulator_yaml
+from rigcal.io._text import (
+    check_keys,
+    is_number,
+    load_yaml,
+    nonempty_string,
+    read_text,
+    type_name,
+)
+from rigcal.io.dataset.accumulator import accumulator_points_for_kind, parse_accumulator_yaml
 from rigcal.io.atomic import atomic_write_text, mark_output
-from rigcal.io.detections_csv import format_detections_csv, parse_detections_csv
-from rigcal.io.ignore import parse_ignore_yaml
+from rigcal.io.dataset.detections_csv import format_detections_csv, parse_detections_csv
+from rigcal.io.dataset.ignore import parse_ignore_yaml
 from rigcal.io.limits import path_stat
 
 MANIFEST_NAME = "rig.yaml"
@@ -106,25 +113,10 @@ def _refuse_detection_rig(data: Mapping[Any, Any], source: str) -> None:
         )
 
 
-def _check_keys(value: Mapping[Any, Any], allowed: Sequence[str], where: str) -> None:
-    unknown = [str(k) for k in value if k not in allowed]
-    if unknown:
-        raise InputError(
-            f"{where}: unknown key(s) {', '.join(repr(k) for k in unknown)} "
-            f"(allowed: {', '.join(allowed)})"
-        )
-
-
-def _string(value: Any, where: str) -> str:
-    if not isinstance(value, str) or not value.strip():
-        raise InputError(f"{where}: expected a non-empty string, got {type_name(value)} {value!r}")
-    return value
-
-
 def check_sensor_name(name: Any, where: str) -> str:
     """``name`` if it can name a sensor (and its files): a non-empty string without whitespace
     or path separators, not ``.`` or ``..``; else InputError."""
-    name = _string(name, where)
+    name = nonempty_string(name, where)
     if _BAD_NAME.search(name) or name in (".", ".."):
         raise InputError(
             f"{where}: sensor name {name!r} must not contain whitespace or path separators"
@@ -143,10 +135,10 @@ def _parse_sensor(i: int, raw: Any, source: str) -> _SensorEntry:
             raise InputError(
                 f"{where}: missing required key '{key}' (required: name, kind, detections)"
             )
-    _check_keys(raw, _SENSOR_KEYS, where)
+    check_keys(raw, _SENSOR_KEYS, where)
     name = check_sensor_name(raw["name"], f"{where}.name")
-    kind = SensorKind.parse(_string(raw["kind"], f"{where}.kind"), f"{where}.kind")
-    detections = _string(raw["detections"], f"{where}.detections")
+    kind = SensorKind.parse(nonempty_string(raw["kind"], f"{where}.kind"), f"{where}.kind")
+    detections = nonempty_string(raw["detections"], f"{where}.detections")
     suffix = Path(detections).suffix.lower()
     if suffix not in _CSV_SUFFIXES + _YAML_SUFFIXES:
         raise InputError(
@@ -155,10 +147,10 @@ def _parse_sensor(i: int, raw: Any, source: str) -> _SensorEntry:
         )
     frame_id = raw.get("frame_id")
     if frame_id is not None:
-        frame_id = _string(frame_id, f"{where}.frame_id")
+        frame_id = nonempty_string(frame_id, f"{where}.frame_id")
     topic = raw.get("topic")
     if topic is not None:
-        topic = _string(topic, f"{where}.topic")
+        topic = nonempty_string(topic, f"{where}.topic")
         if suffix in _CSV_SUFFIXES:
             raise InputError(
                 f"{where}.topic: only accumulator YAML detections have topics, "
@@ -175,14 +167,16 @@ def _parse_sensor(i: int, raw: Any, source: str) -> _SensorEntry:
     return _SensorEntry(i, name, kind, detections, frame_id, elevation, topic)
 
 
-def _parse_board(raw: Any, source: str) -> BoardGeometry:
+def parse_board(raw: Any, source: str) -> BoardGeometry:
+    """The ``board:`` section of a manifest or detection rig (any :class:`BoardGeometry` field,
+    in metres); the defaults when it is missing."""
     if raw is None:
         return BoardGeometry()
     if not isinstance(raw, dict):
         raise InputError(
             f"{source}: board: expected a mapping ({', '.join(_BOARD_KEYS)}), got {type_name(raw)}"
         )
-    _check_keys(raw, _BOARD_KEYS, f"{source}: board")
+    check_keys(raw, _BOARD_KEYS, f"{source}: board")
     for key, value in raw.items():
         if not is_number(value):
             raise InputError(
@@ -208,7 +202,7 @@ def _parse_spec(text: str, source: str) -> _Manifest:
     if "sensors" not in data:
         raise InputError(f"{source}: missing required key 'sensors' (a list of sensors)")
     _refuse_detection_rig(data, source)
-    _check_keys(data, _TOP_KEYS, source)
+    check_keys(data, _TOP_KEYS, source)
     raw_sensors = data["sensors"]
     if not isinstance(raw_sensors, list) or not raw_sensors:
         raise InputError(
@@ -225,15 +219,15 @@ def _parse_spec(text: str, source: str) -> _Manifest:
             )
     reference = data.get("reference")
     if reference is not None:
-        reference = _string(reference, f"{source}: reference")
+        reference = nonempty_string(reference, f"{source}: reference")
         if reference not in names:
             raise InputError(
                 f"{source}: reference: unknown sensor '{reference}' (sensors: {', '.join(names)})"
             )
     ignore = data.get("ignore")
     if ignore is not None:
-        ignore = _string(ignore, f"{source}: ignore")
-    return _Manifest(sensors, reference, _parse_board(data.get("board"), source), ignore)
+        ignore = nonempty_string(ignore, f"{source}: ignore")
+    return _Manifest(sensors, reference, parse_board(data.get("board"), source), ignore)
 
 
 def _resolve(base_dir: Path, relative: str) -> Path:

@@ -25,7 +25,7 @@ import yaml
 import rigcal
 from rigcal.errors import InputError
 from rigcal.io.atomic import atomic_write_text
-from rigcal.io.urdf import check_rigid, format_float, origin_from_matrix
+from rigcal.io.results.urdf import check_rigid, format_float, origin_from_matrix
 
 TF_PERIOD_MS = 100
 CONVENTION = (

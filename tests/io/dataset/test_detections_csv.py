@@ -9,13 +9,13 @@ import pytest
 
 from rigcal.dataset import SensorKind
 from rigcal.errors import InputError
-from rigcal.io.detections_csv import (
+from rigcal.io.dataset.detections_csv import (
     format_detections_csv,
     parse_detections_csv,
     read_detections_csv,
 )
 
-SHARED = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "tudelft_prius"
+SHARED = Path(__file__).resolve().parents[3].parent / "shared" / "data" / "tudelft_prius"
 
 
 def prius_detections() -> Path:

@@ -16,7 +16,7 @@ import yaml
 
 from rigcal.errors import InputError
 from rigcal.geometry import from_rt, so3_exp
-from rigcal.io.tf_export import (
+from rigcal.io.results.tf_export import (
     json_text,
     ros1_launch_text,
     ros2_launch_py_text,

@@ -3,16 +3,14 @@ names, the shared frames() API, and every error path."""
 
 from __future__ import annotations
 
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from rigcal.errors import InputError
-from rigcal.io.bag import write_recording
-from rigcal.io.folder import (
-    decode_image_bytes,
-    open_any,
+from rigcal.io.recordings.bag import write_recording
+from rigcal.io.recordings.open_any import open_any
+from rigcal.io.recordings.folder import (
     open_folder,
     parse_radar_csv,
     radar_csv_text,
@@ -192,18 +190,6 @@ def test_radar_csv_errors(text, dims, match):
         parse_radar_csv(text, "bad.csv", dims=dims)
 
 
-def test_image_errors():
-    import cv2
-
-    with pytest.raises(InputError, match="img: empty image data"):
-        decode_image_bytes(b"", "img")
-    with pytest.raises(InputError, match=r"img: cannot decode image \(not a PNG or JPEG\?\)"):
-        decode_image_bytes(b"\x89PNG garbage", "img")
-    ok, buf = cv2.imencode(".png", np.zeros((3, 3), np.uint16))
-    with pytest.raises(InputError, match="img: image has uint16 pixels, expected 8-bit"):
-        decode_image_bytes(buf.tobytes(), "img")
-
-
 def test_folder_errors(tmp_path):
     with pytest.raises(InputError, match=r"nope: recording folder not found"):
         open_folder(tmp_path / "nope")
@@ -252,15 +238,3 @@ def test_write_folder_errors(tmp_path):
         write_folder_recording(tmp_path / "r4", {"l": [c]}, point_cloud_format="ply")
     with pytest.raises(InputError, match="negative time -1 ns"):
         write_folder_recording(tmp_path / "r5", {"l": [PointCloudFrame("l", -1, [[1, 2, 3]])]})
-
-
-def test_open_any_dispatches(tmp_path):
-    cloud = PointCloudFrame("l", 1, [[1, 2, 3]])
-    bag = write_recording(tmp_path / "b", {"/p": [cloud]}, "rosbag2-mcap")
-    folder = write_folder_recording(tmp_path / "f", {"p": [cloud]})
-    with open_any(bag) as rec:
-        assert rec.topics() == {"/p": "sensor_msgs/msg/PointCloud2"}
-    with open_any(folder) as rec:
-        assert rec.topics() == {"p": "points"}
-    with pytest.raises(InputError, match="recording folder not found"):
-        open_any(Path(tmp_path / "missing"))

@@ -48,9 +48,16 @@ from typing import Any, Mapping
 from rigcal.dataset import DEFAULT_MAX_ELEVATION_DEG, BoardGeometry, SensorKind
 from rigcal.detect.placements import NS, StabilityRule
 from rigcal.errors import InputError
-from rigcal.io._text import is_number, load_yaml, read_text, type_name
+from rigcal.io._text import (
+    check_keys,
+    is_number,
+    load_yaml,
+    nonempty_string,
+    read_text,
+    type_name,
+)
 from rigcal.io.limits import check_scalar, path_stat
-from rigcal.io.manifest import _check_keys, _parse_board, _string, check_sensor_name
+from rigcal.io.dataset.manifest import check_sensor_name, parse_board
 
 INPUTS = {
     SensorKind.LIDAR: ("cloud",),
@@ -116,24 +123,24 @@ def _parse_sensor(i: int, raw: Any, source: str, base_dir: Path) -> SensorSetup:
     for key in ("name", "kind", "topic"):
         if key not in raw:
             raise InputError(f"{where}: missing required key '{key}' (required: name, kind, topic)")
-    _check_keys(raw, _SENSOR_KEYS, where)
+    check_keys(raw, _SENSOR_KEYS, where)
     name = check_sensor_name(raw["name"], f"{where}.name")
-    kind = SensorKind.parse(_string(raw["kind"], f"{where}.kind"), f"{where}.kind")
+    kind = SensorKind.parse(nonempty_string(raw["kind"], f"{where}.kind"), f"{where}.kind")
     allowed = INPUTS[kind]
     inp = raw.get("input", allowed[0])
     if inp not in allowed:
         raise InputError(f"{where}.input: '{inp}' is not an input of a {kind.value} (allowed: {', '.join(allowed)})")
-    topic = _string(raw["topic"], f"{where}.topic")
+    topic = nonempty_string(raw["topic"], f"{where}.topic")
     right = raw.get("right_topic")
     if inp == "stereo_pair":
         if right is None:
             raise InputError(f"{where}: input stereo_pair needs right_topic")
-        right = _string(right, f"{where}.right_topic")
+        right = nonempty_string(right, f"{where}.right_topic")
         stereo = raw.get("stereo")
         need = ("fx", "fy", "cx", "cy", "baseline_m")
         if not isinstance(stereo, dict) or any(k not in stereo for k in need):
             raise InputError(f"{where}.stereo: input stereo_pair needs {{{', '.join(need)}}} of the rectified pair")
-        _check_keys(stereo, need, f"{where}.stereo")
+        check_keys(stereo, need, f"{where}.stereo")
         for k, v in stereo.items():
             if not is_number(v) or (k in ("fx", "fy", "baseline_m") and not v > 0):
                 raise InputError(f"{where}.stereo.{k}: expected a positive number, got {v!r}")
@@ -146,13 +153,13 @@ def _parse_sensor(i: int, raw: Any, source: str, base_dir: Path) -> SensorSetup:
         if intrinsics is None and cam_info is None:
             raise InputError(f"{where}: a mono camera needs intrinsics (file) or camera_info_topic")
     if intrinsics is not None:
-        p = Path(_string(intrinsics, f"{where}.intrinsics"))
+        p = Path(nonempty_string(intrinsics, f"{where}.intrinsics"))
         intrinsics = p if p.is_absolute() else base_dir / p
         st = path_stat(intrinsics, "camera intrinsics file")
         if st is None or not stat.S_ISREG(st.st_mode):
             raise InputError(f"{where}.intrinsics: file not found: {intrinsics}")
     if cam_info is not None:
-        cam_info = _string(cam_info, f"{where}.camera_info_topic")
+        cam_info = nonempty_string(cam_info, f"{where}.camera_info_topic")
     elev = raw.get("elevation_fov_deg", DEFAULT_MAX_ELEVATION_DEG)
     if not is_number(elev) or not 0 < elev <= 90:
         raise InputError(f"{where}.elevation_fov_deg: expected degrees in (0, 90], got {elev!r}")
@@ -165,7 +172,7 @@ def _parse_sensor(i: int, raw: Any, source: str, base_dir: Path) -> SensorSetup:
         kind=kind,
         input=inp,
         topic=topic,
-        frame_id=_string(frame_id, f"{where}.frame_id") if frame_id is not None else name,
+        frame_id=nonempty_string(frame_id, f"{where}.frame_id") if frame_id is not None else name,
         right_topic=right,
         intrinsics=intrinsics,
         camera_info_topic=cam_info,
@@ -202,7 +209,7 @@ def parse_rig_config(text: str, source: str, base_dir: str | os.PathLike[str]) -
     data = load_yaml(text, source)
     if not isinstance(data, dict) or "sensors" not in data:
         raise InputError(f"{source}: expected a mapping with a 'sensors' list")
-    _check_keys(data, _TOP_KEYS, source)
+    check_keys(data, _TOP_KEYS, source)
     raw = data["sensors"]
     if not isinstance(raw, list) or not raw:
         raise InputError(f"{source}: sensors: expected a non-empty list")
@@ -216,11 +223,11 @@ def parse_rig_config(text: str, source: str, base_dir: str | os.PathLike[str]) -
     pl = data.get("placements") or {}
     if not isinstance(pl, dict):
         raise InputError(f"{source}: placements: expected a mapping")
-    _check_keys(pl, _PLACEMENT_KEYS, f"{source}: placements")
+    check_keys(pl, _PLACEMENT_KEYS, f"{source}: placements")
     st = pl.get("stability") or {}
     if not isinstance(st, dict):
         raise InputError(f"{source}: placements.stability: expected a mapping")
-    _check_keys(st, _STABILITY_KEYS, f"{source}: placements.stability")
+    check_keys(st, _STABILITY_KEYS, f"{source}: placements.stability")
     for k, v in st.items():
         if not is_number(v) or not v >= 0:
             raise InputError(f"{source}: placements.stability.{k}: expected a number >= 0, got {v!r}")
@@ -237,7 +244,7 @@ def parse_rig_config(text: str, source: str, base_dir: str | os.PathLike[str]) -
     return DetectionRig(
         sensors=sensors,
         reference=reference,
-        board=_parse_board(data.get("board"), source),
+        board=parse_board(data.get("board"), source),
         stability=stability,
         windows_ns=windows_ns,
         min_sensors=min_sensors,

@@ -37,7 +37,7 @@
   intrinsics in the file and is not supported.
 
 :func:`read_camera_file` reads either of them - or a ROS CameraInfo YAML / calibrator INI
-(:mod:`rigcal.io.intrinsics`) - choosing by content. Every malformed input raises
+(:mod:`rigcal.io.config.intrinsics`) - choosing by content. Every malformed input raises
 :class:`InputError` naming the file and the key.
 """
 
@@ -56,7 +56,7 @@ import yaml
 from rigcal.errors import InputError
 from rigcal.io.limits import check_finite
 from rigcal.io._text import is_number, load_yaml, read_text, type_name
-from rigcal.io.intrinsics import parse_camera_info_yaml_text, parse_intrinsics_ini_text
+from rigcal.io.config.intrinsics import parse_camera_info_yaml_text, parse_intrinsics_ini_text
 from rigcal.sensors.camera.base import CameraModel
 from rigcal.sensors.camera.double_sphere import DoubleSphereCamera
 from rigcal.sensors.camera.kannala_brandt import KannalaBrandtCamera

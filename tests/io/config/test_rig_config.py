@@ -6,7 +6,7 @@ import pytest
 
 from rigcal.dataset import SensorKind
 from rigcal.errors import InputError
-from rigcal.io.rig_config import load_rig_config, parse_rig_config
+from rigcal.io.config.rig_config import load_rig_config, parse_rig_config
 
 GOOD = """
 sensors:

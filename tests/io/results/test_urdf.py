@@ -14,10 +14,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-import rigcal.io.urdf as urdf_module
+import rigcal.io.results.urdf as urdf_module
 from rigcal.errors import InputError
 from rigcal.geometry import from_rt, invert, matrix_from_rpy, rpy_from_matrix, so3_exp
-from rigcal.io.urdf import (
+from rigcal.io.results.urdf import (
     format_float,
     forward_kinematics,
     matrix_from_origin,
@@ -31,7 +31,7 @@ from rigcal.io.urdf import (
     write_urdf,
 )
 
-DATA = Path(__file__).resolve().parents[3] / "shared" / "data" / "tudelft_prius" / "urdf"
+DATA = Path(__file__).resolve().parents[4] / "shared" / "data" / "tudelft_prius" / "urdf"
 if not DATA.exists():  # pragma: no cover - alternative checkout layouts
     DATA = Path("/work/shared/data/tudelft_prius/urdf")
 
@@ -860,9 +860,9 @@ def test_prius_calibration_into_the_shared_urdf(tmp_path):
     import yaml
 
     from rigcal.cli.main import run
-    from rigcal.io.calibration_files import read_calibration_transforms
+    from rigcal.io.results.calibration_files import read_calibration_transforms
 
-    manifest = Path(__file__).resolve().parents[2] / "examples" / "prius" / "rig.yaml"
+    manifest = Path(__file__).resolve().parents[3] / "examples" / "prius" / "rig.yaml"
     vehicle = DATA / "vehicle.urdf"
     if not vehicle.is_file():
         pytest.skip("../shared/data not present")

@@ -24,7 +24,7 @@ import yaml
 from rigcal.errors import InputError
 from rigcal.geometry.se3 import invert
 from rigcal.io.atomic import atomic_write_text, mark_output
-from rigcal.io.manifest import check_sensor_name
+from rigcal.io.dataset.manifest import check_sensor_name
 from rigcal.problem.result import CalibrationResult
 
 RESULT_YAML_NAME = "calibration.yaml"
@@ -99,8 +99,8 @@ def _ros_frame(frame: str, sensor: str) -> str:
 
 def ros1_launch_text(result: CalibrationResult) -> str:
     """A ROS 1 launch file publishing every non-reference sensor's pose in the reference frame
-    (``T_reference_sensor``), at full float precision (see :mod:`rigcal.io.tf_export`)."""
-    from rigcal.io.tf_export import ros1_launch_text as _launch
+    (``T_reference_sensor``), at full float precision (see :mod:`rigcal.io.results.tf_export`)."""
+    from rigcal.io.results.tf_export import ros1_launch_text as _launch
 
     parent = _ros_frame(_reference_frame(result), result.reference)
     transforms = {

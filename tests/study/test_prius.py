@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from rigcal.cli.main import run
-from rigcal.io.manifest import load_manifest
+from rigcal.io.dataset.manifest import load_manifest
 from rigcal.study.prius import PAIR_NAMES, draw_sets, markdown, study_json, table_ii, table_iii
 
 MANIFEST = Path(__file__).resolve().parents[2] / "examples" / "prius" / "rig.yaml"

@@ -96,7 +96,7 @@ def run_prius(args, console) -> int:
     from rigcal.cli.output import progress_bar
     from rigcal.errors import InputError
     from rigcal.io.atomic import staged_folder
-    from rigcal.io.manifest import load_manifest
+    from rigcal.io.dataset.manifest import load_manifest
     from rigcal.study import prius
 
     manifest = args.manifest

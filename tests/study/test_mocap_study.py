@@ -14,11 +14,8 @@ from rigcal.errors import InputError
 from rigcal.geometry.so3 import rpy_from_matrix
 from rigcal.sim.mocap import paper_rig, paper_targets, simulate_mocap
 from rigcal.study import PAPER_TABLES, StudyTable, run_mocap_study
-from rigcal.study.mocap_study import (
-    extract_observation,
-    main,
-    perturb_calibration,
-)
+from rigcal.cli.study import mocap_main as main
+from rigcal.study.mocap_study import extract_observation, perturb_calibration
 
 
 def _row(table: StudyTable, n: int):

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Sequence
 
 from rigcal.cli.args import count, number, subcommand
 
@@ -88,6 +89,35 @@ def add_parser(sub) -> None:
     pr.add_argument("--out", metavar="DIR", help="write study.md and study.json there")
     pr.add_argument("--json", action="store_true", help="print study.json on stdout instead of Markdown")
     st.set_defaults(func=lambda args, console: run(args, console, st))
+
+
+def mocap_parser() -> argparse.ArgumentParser:
+    """The stand-alone parser of ``rigcal study mocap``'s options."""
+    p = argparse.ArgumentParser(
+        prog="rigcal study mocap",
+        description="Reproduce Charron et al.'s simulated motion-capture calibration study (Tables "
+        "I-III) on simulated VLP-16 scans or camera images, next to the paper's numbers.",
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    return add_arguments(p)
+
+
+def mocap_main(argv: Sequence[str] | None = None) -> tuple[str, int]:
+    """Parse ``argv`` (the options after ``rigcal study mocap``) and run the study; returns
+    (text to print, exit code), argparse's text and code for ``--help`` or a usage error."""
+    import contextlib
+    import io
+
+    from rigcal.study.mocap_study import run as run_study
+
+    buf = io.StringIO()
+    try:
+        with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(buf):
+            args = mocap_parser().parse_args(list(argv) if argv is not None else None)
+    except SystemExit as exc:
+        return buf.getvalue().rstrip("\n"), int(exc.code or 0)
+    return run_study(args)
 
 
 def run_prius(args, console) -> int:

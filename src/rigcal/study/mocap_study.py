@@ -31,7 +31,7 @@ Recorded per (trial, N):
 
 :class:`StudyTable` holds every trial and the mean / standard deviation per ``N``;
 :meth:`StudyTable.format` prints them next to the paper's numbers (:data:`PAPER_TABLES`).
-The command line shell is :func:`main` / :func:`run` (``rigcal study mocap``).
+`rigcal study mocap` runs :func:`run` (its options and parser: :mod:`rigcal.cli.study`).
 """
 
 from __future__ import annotations
@@ -46,7 +46,6 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from rigcal.cli.study import EPILOG, add_arguments  # the options: light, for a fast start
 from rigcal.dataset import SensorKind
 from rigcal.errors import ConvergenceError, GeometryError, InputError, RigcalError
 from rigcal.geometry.se3 import from_rt, invert, transform_points
@@ -74,9 +73,7 @@ __all__ = [
     "StudyRow",
     "StudyTable",
     "TrialResult",
-    "add_arguments",
     "extract_observation",
-    "main",
     "perturb_calibration",
     "run",
     "run_mocap_study",
@@ -632,18 +629,7 @@ def _describe(target, sensor, lidar_measurement, correspondences, lidar_range_si
 
 
 # --------------------------------------------------------------------------------------------
-# command line shell (its options: rigcal.cli.study.add_arguments)
-
-
-def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
-        prog="rigcal study mocap",
-        description="Reproduce Charron et al.'s simulated motion-capture calibration study (Tables "
-        "I-III) on simulated VLP-16 scans or camera images, next to the paper's numbers.",
-        epilog=EPILOG,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    return add_arguments(p)
+# what `rigcal study mocap` runs (its options and parser: rigcal.cli.study)
 
 
 def run(args: argparse.Namespace) -> tuple[str, int]:
@@ -665,18 +651,3 @@ def run(args: argparse.Namespace) -> tuple[str, int]:
 
         return json.dumps(table.as_dict(), indent=2), 0
     return table.format(), 0
-
-
-def main(argv: Sequence[str] | None = None) -> tuple[str, int]:
-    """Parse ``argv`` (the options after ``rigcal study mocap``) and :func:`run`."""
-    import contextlib
-    import io
-
-    parser = build_parser()
-    buf = io.StringIO()
-    try:
-        with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(buf):
-            args = parser.parse_args(list(argv) if argv is not None else None)
-    except SystemExit as exc:  # --help, or a usage error: argparse's text and code
-        return buf.getvalue().rstrip("\n"), int(exc.code or 0)
-    return run(args)

@@ -35,7 +35,7 @@ def manifest(tmp_path_factory) -> Path:
 def _start(manifest: Path, out: Path, plot: bool) -> subprocess.Popen:
     env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
     args = [sys.executable, "-m", "rigcal.cli.main", "calibrate", str(manifest), "--mode", "fcpe",
-            "--out", str(out)] + ([] if plot else ["--no-plot"])
+            "--out", str(out)] + (["--plot"] if plot else [])
     return subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env)
 
 

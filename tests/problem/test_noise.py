@@ -17,6 +17,7 @@ from rigcal.problem.noise import (
     noise_map,
     theta_by_sensor,
 )
+from rigcal.problem.numerics import to_dense
 from rigcal.problem.pairs import all_pairs
 from rigcal.problem.solver import linearise, solve
 from rigcal.sim.rig import make_rig_placements, random_rig, simulate
@@ -53,7 +54,8 @@ def test_noise_map_is_the_residuals_derivative(rig):
     poses = initial_poses(ds, "lidar1")
     problem = build_pairwise(ds, poses, "lidar1", all_pairs(ds))
     units = detection_units(ds)
-    D = noise_map(problem, ds, units).toarray()
+    D = noise_map(problem, ds, units)
+    assert isinstance(D, np.ndarray)  # small: dense, no scipy
     r0 = linearise(problem)[0]
     rng = np.random.default_rng(0)
     for u in rng.choice(units.size, 25, replace=False):
@@ -110,3 +112,20 @@ def test_estimate_theta_is_exact_on_expected_squares():
     # a group no residual depends on keeps the floor
     M0 = np.hstack([M, np.zeros((4, 1))])
     assert estimate_theta(r, M0, 1.0)[2] == pytest.approx(1e-10)
+
+
+def test_large_noise_maps_are_sparse_with_the_same_entries(rig, monkeypatch):
+    """Above DENSE_MAX_ENTRIES the map is a scipy CSR matrix with exactly the dense entries, and
+    the group design built from either is the same."""
+    import rigcal.problem.noise as noise
+
+    sensors, boards = rig
+    ds = simulate(sensors, boards, rng=1).dataset
+    problem = build_pairwise(ds, initial_poses(ds, "lidar1"), "lidar1", all_pairs(ds))
+    units = detection_units(ds)
+    dense = noise_map(problem, ds, units)
+    monkeypatch.setattr(noise, "DENSE_MAX_ENTRIES", 0)
+    sparse = noise_map(problem, ds, units)
+    assert not isinstance(sparse, np.ndarray) and sparse.format == "csr"
+    np.testing.assert_array_equal(to_dense(sparse), dense)
+    np.testing.assert_allclose(group_design(sparse, units), group_design(dense, units), rtol=1e-12)

@@ -10,7 +10,6 @@ from dataclasses import dataclass, field, replace
 from typing import Mapping
 
 import numpy as np
-import scipy.sparse
 from threadpoolctl import threadpool_limits
 
 from rigcal.dataset import Dataset, SensorKind
@@ -35,6 +34,7 @@ from rigcal.problem.observability import check_observable
 from rigcal.problem.outliers import OutlierRule, find_outliers
 from rigcal.problem.pairs import all_pairs, pair_data
 from rigcal.problem.result import CalibrationResult, SensorEstimate
+from rigcal.problem.numerics import scale_rows
 from rigcal.problem.noise import (
     DetectionUnits,
     detection_units,
@@ -649,7 +649,7 @@ def _honest_covariance(
     r_w, J_w, _, _, layout = linearise(problem)
     sigma = np.concatenate([b.sigma.ravel() for b in problem.observations]) if problem.observations else np.zeros(0)
     m, n = J_w.shape
-    Dw = scipy.sparse.diags(1.0 / sigma) @ noise_map(problem, dataset, units)
+    Dw = scale_rows(noise_map(problem, dataset, units), 1.0 / sigma)
     # the fitted parameters absorb n of the m residual degrees of freedom (a row-by-row
     # account, (I - H) D, was tried: near-collinear groups then collapse to the floor)
     theta = estimate_theta(r_w, group_design(Dw, units), m / max(m - n, 1), batches=row_batches(problem))

@@ -28,9 +28,9 @@ from dataclasses import dataclass
 from typing import Mapping
 
 import numpy as np
-import scipy.special
 
 from rigcal.dataset import Dataset
+from rigcal.problem.numerics import chi2_isf
 from rigcal.problem.noise import DetectionUnits, estimate_theta, group_design, noise_map, row_batches
 from rigcal.problem.outliers import OutlierRule
 from rigcal.problem.pairs import all_pairs
@@ -90,7 +90,7 @@ class Verdict:
 @functools.lru_cache(maxsize=4096)
 def _limit(dof: int, tests: int) -> float:
     """Reduced chi-square above which ``dof`` rows fail, ``tests`` such tests made."""
-    q = scipy.special.chdtri(max(dof, 1), ALPHA / max(tests, 1)) / max(dof, 1)  # chi2 isf
+    q = chi2_isf(ALPHA / max(tests, 1), max(dof, 1)) / max(dof, 1)
     return max(float(q), MIN_FAIL_RATIO)
 
 

@@ -36,10 +36,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 import numpy as np
-import scipy.optimize
-import scipy.sparse
 
 from rigcal.dataset import Dataset, SensorKind
+from rigcal.problem.numerics import assemble, issparse, nnls
 from rigcal.problem.residuals import MODEL_POINT, MODEL_RADAR2D
 from rigcal.sensors.radar import project_2d_jacobian
 from rigcal.targets.circle_board import reflectors_from_centres
@@ -163,8 +162,12 @@ def reflector_jacobians(centres: np.ndarray, dataset: Dataset, h: float = 1e-6) 
     return np.swapaxes(d, 2, 3)  # (K, m, out, j)
 
 
-def noise_map(problem, dataset: Dataset, units: DetectionUnits) -> scipy.sparse.csr_matrix:
-    """``D`` (residual rows x units): the first-order effect of each noise unit (at std 1 in
+#: a noise map with more entries than this is a scipy.sparse matrix, otherwise a numpy array
+DENSE_MAX_ENTRIES = 4_000_000
+
+
+def noise_map(problem, dataset: Dataset, units: DetectionUnits):
+    """``D`` (residual rows x units; numpy, or scipy CSR above ``DENSE_MAX_ENTRIES``): the first-order effect of each noise unit (at std 1 in
     its direction, before ``scale``) on each *metric* residual row of ``problem``'s
     observation batches (rows in the solver's order). Batches of the pairwise and PSE
     configurations only (point and 2D radar models; frames are sensors or boards)."""
@@ -217,21 +220,27 @@ def noise_map(problem, dataset: Dataset, units: DetectionUnits) -> scipy.sparse.
                     cols.extend([u0 + c] * d)
                     vals.extend(HR @ units.basis[u0 + c])
         row0 += b.size * d
-    return scipy.sparse.csr_matrix((vals, (rows, cols)), shape=(row0, units.size))
+    return assemble(rows, cols, vals, (row0, units.size), dense=row0 * units.size <= DENSE_MAX_ENTRIES)
 
 
 def group_design(D, units: DetectionUnits) -> np.ndarray:
     """(rows, groups): ``sum_u D_iu^2 scale_u^2`` per group - the rows' variance per unit theta
     (``D`` sparse or dense)."""
     w = units.scale**2
-    onehot = scipy.sparse.csr_matrix(
-        (np.ones(units.size), (units.group, np.arange(units.size))),
-        shape=(len(units.groups), units.size),
-    )
-    if scipy.sparse.issparse(D):
+    if issparse(D):
+        import scipy.sparse
+
+        onehot = scipy.sparse.csr_matrix(
+            (np.ones(units.size), (units.group, np.arange(units.size))),
+            shape=(len(units.groups), units.size),
+        )
         D2 = scipy.sparse.csr_matrix(D.multiply(D).multiply(w[None, :]))
         return np.asarray((onehot @ D2.T).T.todense())
-    return np.asarray(onehot @ (np.asarray(D) ** 2 * w[None, :]).T).T
+    out = np.zeros((np.asarray(D).shape[0], len(units.groups)))
+    weighted = np.asarray(D) ** 2 * w[None, :]
+    for g in range(len(units.groups)):
+        out[:, g] = weighted[:, units.group == g].sum(axis=1)
+    return out
 
 
 def estimate_theta(
@@ -265,7 +274,7 @@ def estimate_theta(
         sw = 1.0 / np.maximum(pred, low)
         A = Mu * sw[:, None]
         col = np.maximum(np.sqrt(np.sum(A**2, axis=0)), 1e-300)
-        th_scaled, _ = scipy.optimize.nnls(A / col, y * sw, maxiter=50 * Mu.shape[1])
+        th_scaled, _ = nnls(A / col, y * sw, maxiter=50 * Mu.shape[1])
         th = th_scaled / col
         pred = Mu @ th
     theta[used] = np.maximum(th, floor)
@@ -283,7 +292,7 @@ def theta_by_sensor(units: DetectionUnits, theta: np.ndarray) -> dict[str, dict[
 
 def sandwich(
     Jw: np.ndarray,
-    Dw: scipy.sparse.spmatrix,
+    Dw,
     units: DetectionUnits,
     theta: np.ndarray,
     prior_precision: np.ndarray | None = None,

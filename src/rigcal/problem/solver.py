@@ -6,7 +6,8 @@ Configurations (MCPE, FCPE, PSE, ...) differ only in which blocks and batches th
 :func:`solve` returns a :class:`Solution` value; it never prints.
 
 Sparsity follows from the bindings: each residual row touches at most two pose blocks. Small
-problems use dense normal equations, large ones scipy.sparse.
+problems use dense normal equations in numpy (:mod:`rigcal.problem.numerics`), large ones
+scipy.sparse, imported only then.
 """
 
 from __future__ import annotations
@@ -16,13 +17,10 @@ from dataclasses import dataclass, field, replace
 from typing import Mapping
 
 import numpy as np
-import scipy.linalg
-import scipy.optimize
-import scipy.sparse
-import scipy.sparse.linalg
 
 from rigcal.errors import ConfigError
 from rigcal.geometry.se3 import se3_exp, se3_log
+from rigcal.problem.numerics import assemble, block_diag, issparse, nnls, null_space, spd_solver
 from rigcal.problem.residuals import (
     MEASURED_DIM,
     MODEL_CAMERA,
@@ -413,17 +411,13 @@ def _scatter(parts, m, layout):
 
 
 def _assemble(rows, cols, vals, m, n):
-    J = scipy.sparse.coo_matrix(
-        (
-            np.concatenate(vals) if vals else np.zeros(0),
-            (
-                np.concatenate(rows) if rows else np.zeros(0, int),
-                np.concatenate(cols) if cols else np.zeros(0, int),
-            ),
-        ),
-        shape=(m, n),
+    return assemble(
+        np.concatenate(rows) if rows else np.zeros(0, int),
+        np.concatenate(cols) if cols else np.zeros(0, int),
+        np.concatenate(vals) if vals else np.zeros(0),
+        (m, n),
+        dense=n <= SPARSE_ABOVE,
     )
-    return J.toarray() if n <= SPARSE_ABOVE else J.tocsr()
 
 
 def _constraints(problem: Problem, layout: _Layout, T: np.ndarray, want_jac: bool = True):
@@ -474,7 +468,7 @@ def _retract(T: np.ndarray, layout: _Layout, delta: np.ndarray) -> np.ndarray:
 
 
 def _normal(J, r):
-    if scipy.sparse.issparse(J):
+    if issparse(J):
         A = (J.T @ J).tocsc()
         g = J.T @ r
         return A, np.asarray(g).ravel()
@@ -483,11 +477,12 @@ def _normal(J, r):
 
 def _factor(M):
     """A solver ``b -> M^-1 b`` for the (damped, positive definite) step matrix."""
-    if scipy.sparse.issparse(M):
+    if issparse(M):
+        import scipy.sparse.linalg
+
         return scipy.sparse.linalg.splu(M.tocsc()).solve
     try:
-        cf = scipy.linalg.cho_factor(M, check_finite=False)
-        return lambda b: scipy.linalg.cho_solve(cf, b, check_finite=False)
+        return spd_solver(M)
     except np.linalg.LinAlgError:
         pinv = np.linalg.pinv(M)
         return lambda b: pinv @ b
@@ -539,7 +534,7 @@ class _StepQP:
             A = np.vstack([self.E.T, ff[None, :]])
             b = np.zeros(m + 1)
             b[-1] = 1.0
-            u, _ = scipy.optimize.nnls(A, b, maxiter=50 * (m + 1))
+            u, _ = nnls(A, b, maxiter=50 * (m + 1))
             denom = 1.0 - float(ff @ u)
             if denom > 1e-10:
                 nu = u / denom
@@ -626,17 +621,20 @@ def _constraint_hessian(problem, layout, T, mult, h=1e-6):
 
 
 def _solve_dense_or_sparse(M, rhs):
-    if scipy.sparse.issparse(M):
+    if issparse(M):
+        import scipy.sparse.linalg
+
         return scipy.sparse.linalg.spsolve(M.tocsc(), rhs)
     try:
-        cf = scipy.linalg.cho_factor(M, check_finite=False)
-        return scipy.linalg.cho_solve(cf, rhs, check_finite=False)
+        return spd_solver(M)(rhs)
     except np.linalg.LinAlgError:
         return np.linalg.lstsq(M, rhs, rcond=None)[0]
 
 
 def _damped(A, lam):
-    if scipy.sparse.issparse(A):
+    if issparse(A):
+        import scipy.sparse
+
         d = A.diagonal()
         return (A + scipy.sparse.diags(lam * np.maximum(d, 1e-12 * max(d.max(), 1e-300)) + 1e-300)).tocsc()
     d = np.diag(A)
@@ -658,7 +656,7 @@ def _model_hessian(problem, layout, T, A, mult, Ssec):
     Hess(c_i) and the secant estimate of the residual curvature where they keep it positive
     definite (the step QP is solved through its convex dual; an indefinite model would give
     an unbounded step). Sparse problems (no secant) get A alone."""
-    if scipy.sparse.issparse(A):
+    if issparse(A):
         return A
     parts = []
     if mult is not None and np.any(mult > 0):
@@ -678,7 +676,7 @@ def _model_hessian(problem, layout, T, A, mult, Ssec):
 def _weakest(A, layout: _Layout) -> str:
     """Why a solve may not finish: the least determined direction of the normal matrix, named
     by its pose and degrees of freedom, with the condition number."""
-    A = A.toarray() if scipy.sparse.issparse(A) else np.asarray(A)
+    A = A.toarray() if issparse(A) else np.asarray(A)
     if A.shape[0] == 0 or A.shape[0] > SPARSE_ABOVE:
         return ""
     w, V = np.linalg.eigh(A)
@@ -924,14 +922,13 @@ def solve(
         lim_raw.append(c[off : off + b.size].copy())
         off += b.size
     # covariance from the final Jacobian (robust weights at the solution)
-    A_dense = A.toarray() if scipy.sparse.issparse(A) else A
+    A_dense = A.toarray() if issparse(A) else A
     n = layout.n_free
     binding = np.flatnonzero(c >= -1e-6) if c.size else np.zeros(0, dtype=int)
     dof = layout.m_obs - n + int(binding.size)
     rank_deficient = False
     try:
-        cf = scipy.linalg.cho_factor(A_dense, check_finite=False)
-        cov = scipy.linalg.cho_solve(cf, np.eye(n), check_finite=False)
+        cov = spd_solver(A_dense)(np.eye(n))
         if not np.all(np.isfinite(cov)):
             raise np.linalg.LinAlgError
         cov_free = cov
@@ -945,7 +942,7 @@ def solve(
     except (np.linalg.LinAlgError, ValueError):
         rank_deficient = True
         if binding.size:
-            Z = scipy.linalg.null_space(G[binding])
+            Z = null_space(G[binding])
             cov = Z @ np.linalg.pinv(Z.T @ A_dense @ Z, rcond=1e-12) @ Z.T
         else:
             cov = np.linalg.pinv(A_dense, rcond=1e-12)
@@ -953,7 +950,7 @@ def solve(
     # redundancy numbers: 1 - diag(J C J') in the whitened space (unscaled covariance). C ignores
     # the field-of-view limits: an inequality that happens to bind must not make the redundancy
     # (and with it the variance components estimated from it) jump as the weights change
-    Jd = J.toarray() if scipy.sparse.issparse(J) else J
+    Jd = J.toarray() if issparse(J) else J
     lev = _leverage(Jd, cov_free, layout.row_cols) if want_redundancy else np.zeros(J.shape[0])
     redundancy = []
     off = 0
@@ -1015,7 +1012,7 @@ def merge_independent(problems: list[Problem], solutions: list[Solution]) -> tup
     return merged, combine_solutions(
         solutions,
         poses={name: poses[name] for name in blocks},
-        covariance=scipy.linalg.block_diag(*covs) if covs else np.zeros((0, 0)),
+        covariance=block_diag(*covs) if covs else np.zeros((0, 0)),
         columns={name: cols[name] for name in blocks},
         status="all sub-problems converged",
     )
@@ -1060,6 +1057,6 @@ def linearise(problem: Problem, layout: "_Layout | None" = None):
     layout = layout if layout is not None else prepare(problem)
     T = np.stack([p.T for p in problem.poses]).astype(float)
     r, J, _, _ = _evaluate(problem, layout, T, "linear", 1.0, True)
-    J = J.toarray() if scipy.sparse.issparse(J) else J
+    J = J.toarray() if issparse(J) else J
     c, G = _constraints(problem, layout, T)
     return r[: layout.m_obs], J[: layout.m_obs], c, G, layout

@@ -126,8 +126,7 @@ def fov_bounds_joint(problems, radar: str) -> tuple[dict[str, tuple[float, float
     direction (so a tilt compensated by a height change is allowed). A direction no board
     bounds gets the search limits (+-90 deg, +-10 m). ``problems``: each with the radar as a
     pose block (the constraints of all of them hold at once)."""
-    from scipy.optimize import linprog
-
+    from rigcal.problem.numerics import maximise_in_polytope
     from rigcal.problem.residuals import point_in_observer
     from rigcal.sensors.radar import elevation, elevation_jacobian
 
@@ -157,20 +156,13 @@ def fov_bounds_joint(problems, radar: str) -> tuple[dict[str, tuple[float, float
         b_ub = np.concatenate([m - e, m + e])
         # the estimate itself may sit a hair outside (solver tolerance): never an empty set
         b_ub = np.maximum(b_ub, 0.0)
-        bounds = [(-lim[i], lim[i]) for i in range(3)]
         out_lim = {}
         for i, n in enumerate(names):
             ends = []
-            for sign in (1.0, -1.0):
-                cost = np.zeros(3)
-                cost[i] = sign
-                res = linprog(cost, A_ub=A_ub, b_ub=b_ub, bounds=bounds, method="highs")
-                if res.status == 0:
-                    ends.append(float(res.x[i]))
-                    vertices.append(np.array(res.x, dtype=float))
-                else:
-                    ends.append(-sign * float(lim[i]))
-                    vertices.append(-sign * lim * np.eye(3)[i])
+            for sign in (-1.0, 1.0):  # the lowest, then the highest offset
+                x = maximise_in_polytope(sign * np.eye(3)[i], A_ub, b_ub, lim)
+                ends.append(float(x[i]))
+                vertices.append(x)
             out_lim[n] = (min(ends[0], 0.0), max(ends[1], 0.0))
     return {
         n: ((float(np.degrees(lo)), float(np.degrees(hi))) if n != "z" else (lo, hi))

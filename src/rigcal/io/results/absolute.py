@@ -27,7 +27,7 @@ import yaml
 
 from rigcal.absolute.result import AbsoluteResult
 from rigcal.errors import InputError
-from rigcal.io._text import load_yaml, read_text, type_name
+from rigcal.io._text import dump_yaml, load_yaml, read_text, type_name
 from rigcal.io.atomic import atomic_write_text, mark_output
 from rigcal.io.results.tf_export import (
     ros1_launch_text,
@@ -119,9 +119,7 @@ def body_transforms(
 
 
 def _dump_yaml(data: Any) -> str:
-    return yaml.safe_dump(
-        data, sort_keys=False, default_flow_style=None, allow_unicode=True, width=10_000
-    )
+    return dump_yaml(data, flow=None)
 
 
 def _renamed(result: AbsoluteResult, parent_frame: str | None) -> AbsoluteResult:

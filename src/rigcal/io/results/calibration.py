@@ -23,6 +23,7 @@ import yaml
 
 from rigcal.errors import InputError
 from rigcal.geometry.se3 import invert
+from rigcal.io._text import dump_yaml
 from rigcal.io.atomic import atomic_write_text, mark_output
 from rigcal.io.dataset.manifest import check_sensor_name
 from rigcal.problem.result import CalibrationResult
@@ -33,9 +34,7 @@ TF_PERIOD_MS = 100
 
 
 def _dump_yaml(data: Any) -> str:
-    return yaml.safe_dump(
-        data, sort_keys=False, default_flow_style=False, allow_unicode=True, width=10_000
-    )
+    return dump_yaml(data, flow=False)
 
 
 def result_to_yaml_text(result: CalibrationResult) -> str:

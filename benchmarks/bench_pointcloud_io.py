@@ -4,7 +4,8 @@ A simulated-looking scan of N points (default 1 M): x, y, z float32, intensity f
 ring uint16, written to and read from a temporary folder (the file system's page cache is warm,
 so this measures parsing and encoding, not the disk). Prints min / median / max seconds over
 ``--runs`` runs for rigcal and, when it is installed, pypcd4 (for comparison only; rigcal does
-not use it).
+not use it). rigcal's default write flushes the file to disk (fsync) before renaming it into
+place; pypcd4 does neither, so the PCD writes are also timed with ``durable=False``.
 Usage: python benchmarks/bench_pointcloud_io.py [--points N] [--runs N] [--only KIND ...]
 """
 
@@ -80,23 +81,36 @@ def main() -> int:
                 lambda: pc.write_ply(path, frame, "binary_little_endian" if data == "binary"
                                      else data, xyz_dtype=np.float32))
             _row(f"rigcal {kind} write", _times(write, args.runs))
+            if fmt == "pcd":  # the default write also fsyncs; pypcd4 does not
+                _row(f"rigcal {kind} write (durable=False)",
+                     _times(lambda: pc.write_pcd(path, frame, data, durable=False), args.runs))
             size = path.stat().st_size
             _row(f"rigcal {kind} read", _times(lambda: pc.read_point_cloud(path, "lidar"),
                                                 args.runs), size)
             if pypcd4 is None or fmt != "pcd":
                 continue
-            cloud = pypcd4.PointCloud.from_points(
-                [frame.points_xyz[:, 0].astype(np.float32), frame.points_xyz[:, 1].astype(
-                    np.float32), frame.points_xyz[:, 2].astype(np.float32),
-                 frame.fields["intensity"], frame.fields["ring"]],
-                ("x", "y", "z", "intensity", "ring"),
-                (np.float32, np.float32, np.float32, np.float32, np.uint16))
+            def build():  # pypcd4's own cloud from the same float64 arrays rigcal writes from
+                return pypcd4.PointCloud.from_points(
+                    [frame.points_xyz[:, 0].astype(np.float32), frame.points_xyz[:, 1].astype(
+                        np.float32), frame.points_xyz[:, 2].astype(np.float32),
+                     frame.fields["intensity"], frame.fields["ring"]],
+                    ("x", "y", "z", "intensity", "ring"),
+                    (np.float32, np.float32, np.float32, np.float32, np.uint16))
+
+            cloud = build()
             other = Path(tmp) / f"pypcd4_{data}.pcd"
             _row(f"pypcd4 {kind} write", _times(
                 lambda: cloud.save(other, encoding=pypcd4.Encoding(data)), args.runs))
+            _row(f"pypcd4 {kind} write (from the arrays)", _times(
+                lambda: build().save(other, encoding=pypcd4.Encoding(data)), args.runs))
             _row(f"pypcd4 {kind} read",
                  _times(lambda: pypcd4.PointCloud.from_path(other).numpy(), args.runs),
                  other.stat().st_size)
+            # the same files both ways: the codec's speed depends on the bytes it is given
+            _row(f"rigcal {kind} read (pypcd4's file)",
+                 _times(lambda: pc.read_point_cloud(other, "lidar"), args.runs))
+            _row(f"pypcd4 {kind} read (rigcal's file)",
+                 _times(lambda: pypcd4.PointCloud.from_path(path).numpy(), args.runs))
             # what pypcd4 wrote, rigcal reads (and the other way round)
             theirs = pc.read_point_cloud(other, "lidar")
             ours = pypcd4.PointCloud.from_path(path).numpy()

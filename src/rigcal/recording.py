@@ -16,9 +16,25 @@ from rigcal.errors import InputError
 
 
 def _frozen(a: np.ndarray, dtype=None) -> np.ndarray:
+    """A read-only array of ``a``: ``a`` itself when nobody can write to it any more (read-only
+    all the way down to an owner or to immutable bytes, as the file readers hand over), else a
+    read-only copy."""
+    if isinstance(a, np.ndarray) and (dtype is None or a.dtype == np.dtype(dtype)) and _sealed(a):
+        return a
     out = np.array(a, dtype=dtype)
     out.setflags(write=False)
     return out
+
+
+def _sealed(a: np.ndarray) -> bool:
+    b: object = a
+    while isinstance(b, np.ndarray):
+        if b.flags.writeable:
+            return False
+        if b.base is None:
+            return True
+        b = b.base
+    return isinstance(b, bytes)
 
 
 @dataclass(frozen=True, eq=False)  # holds arrays: compare by identity

@@ -36,11 +36,16 @@ def _make_parent(target: Path) -> None:
 
 
 def atomic_write_bytes(path: str | os.PathLike[str],
-                       data: bytes | bytearray | memoryview | list | tuple) -> Path:
+                       data: bytes | bytearray | memoryview | list | tuple,
+                       durable: bool = True) -> Path:
     """Write ``data`` to ``path`` atomically; returns the path. OS errors raise InputError.
 
     ``data`` may be a list or tuple of byte buffers, written one after the other (a header and
-    a large array's memory without joining them first)."""
+    a large array's memory without joining them first). The file is written beside ``path``
+    and renamed over it, so a killed process leaves the old file or the new one, never a part.
+    ``durable`` (default) also flushes it to the disk before the rename (``fsync``), so that a
+    power cut cannot leave an empty file either; bulk data that can be written again (point
+    clouds) may skip that: on a slow disk it costs more than encoding the data."""
     target = Path(path)
     parts = list(data) if isinstance(data, (list, tuple)) else [data]
     for part in parts:
@@ -61,7 +66,8 @@ def atomic_write_bytes(path: str | os.PathLike[str],
             for part in parts:
                 fh.write(part)
             fh.flush()
-            os.fsync(fh.fileno())
+            if durable:
+                os.fsync(fh.fileno())
         if mode is not None:
             os.chmod(tmp, mode)
         os.replace(tmp, target)

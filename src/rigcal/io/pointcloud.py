@@ -297,13 +297,16 @@ def _frame_from_columns(columns: Sequence[tuple[str, np.ndarray]], source: str, 
     for k, a in enumerate(_XYZ):
         xyz[:, k] = named[a]
     points = check_points(xyz, source)
+    points.setflags(write=False)  # new memory, handed to the frame without another copy
     fields = {}
     for name, col in named.items():
         if name in _XYZ:
             continue
         if name == _RING:
             col = _ring_u16(col)
-        fields[name] = np.ascontiguousarray(col, dtype=col.dtype.newbyteorder("="))
+        col = np.ascontiguousarray(col, dtype=col.dtype.newbyteorder("="))
+        col.setflags(write=False)
+        fields[name] = col
     return PointCloudFrame(sensor=sensor, t_ns=t_ns, points_xyz=points, fields=fields,
                            organized_shape=organized_shape, frame_id=frame_id)
 
@@ -317,11 +320,13 @@ def _ring_u16(col: np.ndarray) -> np.ndarray:
     return col.astype("<u2")
 
 
-def _columns_of(frame: PointCloudFrame, xyz_dtype: np.dtype, source: str
+def _columns_of(frame: PointCloudFrame, xyz_dtype: np.dtype, source: str, cast_xyz: bool = True
                 ) -> list[tuple[str, np.ndarray]]:
-    """x, y, z (as ``xyz_dtype``) then the frame's fields, each (N,), checked for writing."""
+    """x, y, z (as ``xyz_dtype``) then the frame's fields, each (N,), checked for writing.
+    ``cast_xyz=False``: x, y, z stay views of the frame's float64 points (the caller casts)."""
     pts = frame.points_xyz
-    cols = [(a, pts[:, k].astype(xyz_dtype, copy=False)) for k, a in enumerate(_XYZ)]
+    cols = [(a, pts[:, k].astype(xyz_dtype, copy=False) if cast_xyz else pts[:, k])
+            for k, a in enumerate(_XYZ)]
     for name, values in frame.fields.items():
         if name in _XYZ:
             raise InputError(f"{source}: field '{name}' clashes with a coordinate")
@@ -660,13 +665,21 @@ def pcd_bytes(frame: PointCloudFrame, data: str = "binary", xyz_dtype: object = 
     return b"".join(_pcd_parts(frame, data, xyz_dtype, source))
 
 
-def _records(cols: Sequence[tuple[str, np.ndarray]], n: int) -> memoryview:
-    """The columns packed row by row (one record per point), as a memoryview of new memory."""
-    record = np.dtype({"names": [f"f{k}" for k in range(len(cols))],
-                       "formats": [c.dtype for _, c in cols]})
-    table = np.empty(n, dtype=record)
-    for k, (_, c) in enumerate(cols):
-        table[f"f{k}"] = c
+def _records(cols: Sequence[tuple[str, np.ndarray]], n: int,
+             xyz: np.ndarray | None = None, xyz_dtype: np.dtype | None = None) -> memoryview:
+    """The columns packed row by row (one record per point), as a memoryview of new memory.
+    With ``xyz`` (N, 3), the first three columns (x, y, z) are filled from it by one cast to
+    ``xyz_dtype`` (the same bytes as three fields of that dtype)."""
+    names = [f"f{k}" for k in range(len(cols))]
+    formats: list = [c.dtype for _, c in cols]
+    first = 0
+    if xyz is not None:
+        names, formats, first = ["xyz", *names[3:]], [(xyz_dtype, (3,)), *formats[3:]], 3
+    table = np.empty(n, dtype=np.dtype({"names": names, "formats": formats}))
+    if xyz is not None:
+        table["xyz"] = xyz
+    for name, (_, c) in zip(names[1 if first else 0:], cols[first:]):
+        table[name] = c
     return table.data.cast("B")
 
 
@@ -676,7 +689,9 @@ def _pcd_parts(frame: PointCloudFrame, data: str, xyz_dtype: object, source: str
     if data not in _PCD_DATA_KINDS:
         raise InputError(f"{source}: PCD data must be one of {', '.join(_PCD_DATA_KINDS)}, "
                          f"got {data!r}")
-    cols = _columns_of(frame, _xyz_dtype(xyz_dtype, source), source)
+    xyz_dt = _xyz_dtype(xyz_dtype, source)
+    cols = _columns_of(frame, xyz_dt, source, cast_xyz=data != "binary")
+    dtypes = [xyz_dt] * 3 + [c.dtype for _, c in cols[3:]]
     n = len(frame)
     height, width = frame.organized_shape if frame.organized_shape else (1, n)
     type_letter = {"f": "F", "i": "I", "u": "U"}
@@ -684,8 +699,8 @@ def _pcd_parts(frame: PointCloudFrame, data: str, xyz_dtype: object, source: str
         "# .PCD v0.7 - Point Cloud Data file format",
         "VERSION 0.7",
         "FIELDS " + " ".join(name for name, _ in cols),
-        "SIZE " + " ".join(str(c.dtype.itemsize) for _, c in cols),
-        "TYPE " + " ".join(type_letter[c.dtype.kind] for _, c in cols),
+        "SIZE " + " ".join(str(dt.itemsize) for dt in dtypes),
+        "TYPE " + " ".join(type_letter[dt.kind] for dt in dtypes),
         "COUNT " + " ".join("1" for _ in cols),
         f"WIDTH {width}",
         f"HEIGHT {height}",
@@ -695,7 +710,7 @@ def _pcd_parts(frame: PointCloudFrame, data: str, xyz_dtype: object, source: str
     ]
     head = ("\n".join(lines) + "\n").encode("ascii")
     if data == "binary":
-        return [head, _records(cols, n)]
+        return [head, _records(cols, n, xyz=frame.points_xyz, xyz_dtype=xyz_dt)]
     if data == "binary_compressed":
         raw = b"".join([np.ascontiguousarray(c).data.cast("B") for _, c in cols])
         packed = lzf_compress(raw) if raw else b""
@@ -707,9 +722,10 @@ def _pcd_parts(frame: PointCloudFrame, data: str, xyz_dtype: object, source: str
 
 
 def write_pcd(path: str | os.PathLike[str], frame: PointCloudFrame, data: str = "binary",
-              xyz_dtype: object = np.float32) -> Path:
-    """Write ``frame`` as a PCD file (see :func:`pcd_bytes`) atomically; returns the path."""
-    return atomic_write_bytes(path, _pcd_parts(frame, data, xyz_dtype, source=str(path)))
+              xyz_dtype: object = np.float32, durable: bool = True) -> Path:
+    """Write ``frame`` as a PCD file (see :func:`pcd_bytes`) atomically; returns the path.
+    ``durable=False`` skips the fsync (see :func:`rigcal.io.atomic.atomic_write_bytes`)."""
+    return atomic_write_bytes(path, _pcd_parts(frame, data, xyz_dtype, source=str(path)), durable)
 
 
 # --------------------------------------------------------------------------------------------
@@ -871,9 +887,11 @@ def ply_bytes(frame: PointCloudFrame, data: str = "binary_little_endian",
 
 
 def write_ply(path: str | os.PathLike[str], frame: PointCloudFrame,
-              data: str = "binary_little_endian", xyz_dtype: object = np.float64) -> Path:
-    """Write ``frame`` as a PLY file (see :func:`ply_bytes`) atomically; returns the path."""
-    return atomic_write_bytes(path, ply_bytes(frame, data, xyz_dtype, source=str(path)))
+              data: str = "binary_little_endian", xyz_dtype: object = np.float64,
+              durable: bool = True) -> Path:
+    """Write ``frame`` as a PLY file (see :func:`ply_bytes`) atomically; returns the path.
+    ``durable=False`` skips the fsync (see :func:`rigcal.io.atomic.atomic_write_bytes`)."""
+    return atomic_write_bytes(path, ply_bytes(frame, data, xyz_dtype, source=str(path)), durable)
 
 
 # --------------------------------------------------------------------------------------------
@@ -976,9 +994,10 @@ def npy_bytes(frame: PointCloudFrame, source: str = "NPY") -> bytes:
     return buf.getvalue()
 
 
-def write_npy(path: str | os.PathLike[str], frame: PointCloudFrame) -> Path:
-    """Write ``frame`` as ``.npy`` (see :func:`npy_bytes`) atomically; returns the path."""
-    return atomic_write_bytes(path, npy_bytes(frame, source=str(path)))
+def write_npy(path: str | os.PathLike[str], frame: PointCloudFrame, durable: bool = True) -> Path:
+    """Write ``frame`` as ``.npy`` (see :func:`npy_bytes`) atomically; returns the path.
+    ``durable=False`` skips the fsync (see :func:`rigcal.io.atomic.atomic_write_bytes`)."""
+    return atomic_write_bytes(path, npy_bytes(frame, source=str(path)), durable)
 
 
 # --------------------------------------------------------------------------------------------

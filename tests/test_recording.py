@@ -32,7 +32,7 @@ def test_a_read_only_view_of_writable_memory_is_copied():
 
 
 def test_sealed_arrays_are_shared_not_copied():
-    sealed = np.arange(12, dtype=float).reshape(4, 3)
+    sealed = np.arange(12, dtype=float).reshape(4, 3).copy()  # owns its memory
     sealed.setflags(write=False)
     assert _frame(sealed).points_xyz is sealed
     from_bytes = np.frombuffer(bytes(16), dtype=np.float32)  # immutable bytes underneath

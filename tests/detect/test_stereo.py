@@ -282,6 +282,22 @@ def test_pair_detector_matches_only_around_the_board_as_accurately(near_pairs, n
     assert sum(f < 0.35 for f in fractions) >= 5, fractions
 
 
+def test_windows_are_detected_from_the_coarse_candidate_without_segmenting_again(near_pairs, monkeypatch):
+    """The window's detection is seeded by the coarse candidate's plane: the window is not
+    segmented again (the whole detector runs there only when the seeded one fails)."""
+    import rigcal.detect.stereo as stereo_module
+
+    def no_second_segmentation(*_a, **_k):
+        raise AssertionError("the window was segmented again")
+
+    monkeypatch.setattr(stereo_module, "detect_board_stereo", no_second_segmentation)
+    scene, pair, _ = near_pairs[2]
+    det = detect_board_stereo_pair(pair, RIG)
+    assert isinstance(det, BoardDetection) and det.quality["window_fraction"] < 0.35
+    assert_order(det, scene.truth)
+    assert max(errors_m(det, scene.truth)) <= 0.025
+
+
 def test_pair_detector_falls_back_to_the_whole_image():
     scene = Scene(700, 7.0, lateral=-0.4, yaw=math.radians(20), tilt=math.radians(8))
     pair = scene.pair()

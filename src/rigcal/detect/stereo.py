@@ -54,6 +54,7 @@ from rigcal.detect.pointcloud import (
 from rigcal.detect.result import BoardDetection, DetectionFailure, DetectionResult
 from rigcal.errors import ConfigError, GeometryError
 from rigcal.geometry.fitting import (
+    PlaneFit,
     fit_plane_lstsq,
     from_plane_2d,
     intersect_rays_plane,
@@ -429,11 +430,14 @@ def detect_board_stereo_pair(
         coarse_factor = max(1, int(rig.width) // 640)
     windows = _board_windows(frame, rig, board, config, params, coarse_factor, margin_px) \
         if coarse_factor > 1 else []
-    for window, d_max in windows:
+    for window, d_max, cand in windows:
         span = int(math.ceil((1.25 * d_max + 16 - params.min_disparity) / 16)) * 16
         fine = dataclasses.replace(params, num_disparities=max(16, min(span,
                                                                        params.num_disparities)))
-        det = detect_board_stereo(point_cloud_in_window(frame, rig, window, fine), board, config)
+        cloud = point_cloud_in_window(frame, rig, window, fine)
+        det = _detect_seeded(cloud, cand, board, config)
+        if not isinstance(det, BoardDetection):  # the whole detector on the window
+            det = detect_board_stereo(cloud, board, config)
         if isinstance(det, BoardDetection):
             u0, v0, u1, v1 = window
             fraction = (u1 - u0) * (v1 - v0) / float(rig.width * rig.height)
@@ -446,10 +450,44 @@ def detect_board_stereo_pair(
     return det
 
 
+def _detect_seeded(frame: PointCloudFrame, cand: BoardSegment, board: BoardGeometry,
+                   cfg: StereoDetectorConfig) -> DetectionResult:
+    """Step 3 of the detector on a full-resolution window, seeded by the coarse candidate
+    instead of segmenting the window again: the seeds are the usable points within the plane
+    threshold (doubled: the coarse plane is coarser) of the candidate's plane; the plate is
+    then found, refitted and searched for holes exactly as after a segmentation."""
+    pts = frame.points_xyz
+    if frame.organized_shape is None or pts.shape[0] == 0:
+        return DetectionFailure(frame.sensor, frame.t_ns, "no_board_plane", "not an organised cloud")
+    lo, hi = check_box(cfg.roi_min_xyz, cfg.roi_max_xyz, "stereo detector")
+    up = check_axis(cfg.up_axis, "up_axis", "stereo detector")
+    finite = np.isfinite(pts).all(axis=1)
+    safe = np.where(finite[:, None], pts, 0.0)
+    r = np.linalg.norm(safe, axis=1)
+    usable = finite & (r >= cfg.min_range_m) & (r <= cfg.max_range_m)
+    if lo is not None:
+        usable &= box_mask(pts, lo, hi)
+    normal, d = cand.plane.normal, float(cand.plane.d)
+    seeds = np.nonzero(usable & (np.abs(safe @ normal + d) < 2.0 * cfg.plane_threshold_m))[0]
+    if seeds.size < max(10, cfg.min_board_points // 4):
+        return DetectionFailure(frame.sensor, frame.t_ns, "no_board_plane",
+                                f"{seeds.size} window points near the coarse board plane")
+    seg = BoardSegment(np.arange(seeds.size), PlaneFit(normal, d, np.ones(seeds.size, bool),
+                                                        float(cand.plane.rms)),
+                       cand.extents_m, cand.partial)
+    hp = HoleParams.from_config(board, cfg)
+    try:
+        return _detect_on_candidate(frame, pts, usable, seeds, seg, up, hp, cfg,
+                                    np.random.default_rng(cfg.seed))
+    except StepFailed as exc:
+        return DetectionFailure(frame.sensor, frame.t_ns, exc.reason, exc.detail)
+
+
 def _board_windows(frame, rig, board, config, params, factor, margin_px
-                   ) -> list[tuple[tuple[int, int, int, int], float]]:
+                   ) -> list[tuple[tuple[int, int, int, int], float, BoardSegment]]:
     """Full-resolution windows (u0, v0, u1, v1) around the board candidates of the coarse
-    cloud, each with the candidate's largest disparity [px] (best candidate first)."""
+    cloud, each with the candidate's largest disparity [px] and the candidate itself (its
+    plane is in the same optical frame as the full-resolution cloud; best candidate first)."""
     from rigcal.sensors.stereo import downsample_pair, point_cloud_from_pair
 
     small, small_rig = downsample_pair(frame, rig, factor)
@@ -477,5 +515,5 @@ def _board_windows(frame, rig, board, config, params, factor, margin_px
                   max(0, int(rows.min()) * factor - margin_px),
                   min(rig.width, (int(cols.max()) + 1) * factor + margin_px),
                   min(rig.height, (int(rows.max()) + 1) * factor + margin_px))
-        out.append((window, rig.fx * rig.baseline_m / z_min))
+        out.append((window, rig.fx * rig.baseline_m / z_min, cand))
     return out

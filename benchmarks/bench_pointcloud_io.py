@@ -22,7 +22,7 @@ from typing import Callable
 
 import numpy as np
 
-from rigcal.io import pointcloud as pc
+from rigcal.io import clouds as pc
 from rigcal.recording import PointCloudFrame
 
 KINDS = ("pcd ascii", "pcd binary", "pcd binary_compressed", "ply binary", "ply ascii")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from rigcal.io.pointcloud import parse_pcd_bytes, pcd_bytes
+from rigcal.io.clouds import parse_pcd_bytes, pcd_bytes
 from rigcal.recording import PointCloudFrame
 
 

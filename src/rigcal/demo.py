@@ -442,7 +442,7 @@ def absolute_demo(
     from rigcal.io.atomic import atomic_write_text
     from rigcal.io.results.calibration_files import read_calibration_transforms
     from rigcal.io.dataset.manifest import load_manifest, write_dataset
-    from rigcal.io.pointcloud import read_point_cloud, write_pcd
+    from rigcal.io.clouds import read_point_cloud, write_pcd
     from rigcal.io.results.urdf import write_urdf
     from rigcal.problem.compare import pose_error
     from rigcal.recording import PointCloudFrame

@@ -11,7 +11,7 @@ from rigcal.cli.main import run
 from rigcal.dataset import SensorKind
 from rigcal.io.results.calibration_files import read_calibration_transforms
 from rigcal.io.dataset.manifest import write_dataset
-from rigcal.io.pointcloud import write_pcd
+from rigcal.io.clouds import write_pcd
 from rigcal.recording import PointCloudFrame
 from rigcal.sim.rig import SimSensor, make_rig_placements, simulate
 from rigcal.sim.vehicle import ExternalScanner, SimVehicle, simulate_external_scan, simulate_rim_labels

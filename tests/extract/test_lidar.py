@@ -22,7 +22,7 @@ from rigcal.extract import (
     prepare_template,
 )
 from rigcal.extract.lidar import ring_ends
-from rigcal.io.pointcloud import read_point_cloud
+from rigcal.io.clouds import read_point_cloud
 from rigcal.recording import PointCloudFrame
 
 # VLP-16 at 300 rpm: 0.1 deg azimuth steps, 2 deg between beams.

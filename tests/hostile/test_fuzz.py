@@ -181,7 +181,7 @@ def test_fuzz_camera_files(limited):
 
 
 def test_fuzz_pcd(limited):
-    from rigcal.io.pointcloud import parse_pcd_bytes, pcd_bytes
+    from rigcal.io.clouds import parse_pcd_bytes, pcd_bytes
 
     cloud = _cloud()
     seeds = [pcd_bytes(cloud, kind) for kind in ("ascii", "binary", "binary_compressed")]
@@ -189,7 +189,7 @@ def test_fuzz_pcd(limited):
 
 
 def test_fuzz_ply(limited):
-    from rigcal.io.pointcloud import parse_ply_bytes, ply_bytes
+    from rigcal.io.clouds import parse_ply_bytes, ply_bytes
 
     cloud = _cloud()
     seeds = [ply_bytes(cloud, kind) for kind in ("ascii", "binary_little_endian")]
@@ -197,7 +197,7 @@ def test_fuzz_ply(limited):
 
 
 def test_fuzz_npy(limited):
-    from rigcal.io.pointcloud import npy_bytes, parse_npy_bytes
+    from rigcal.io.clouds import npy_bytes, parse_npy_bytes
     from rigcal.recording import PointCloudFrame
 
     cloud = _cloud()
@@ -210,7 +210,7 @@ def test_fuzz_npy_headers(limited):
     """Header dictionaries built from parts: shapes of any size, odd dtypes, nesting."""
     import struct
 
-    from rigcal.io.pointcloud import parse_npy_bytes
+    from rigcal.io.clouds import parse_npy_bytes
 
     descr = st.sampled_from(["'<f8'", "'<f4'", "'|O'", "'<c16'", "'|V0'", "'S3'", "'<f8', 'x'",
                              "[('x', '<f4'), ('y', '<f4'), ('z', '<f4')]", "[('x', '|O')]",
@@ -286,7 +286,7 @@ def _convert(ts, serialize: str, msgtype: str, raw: bytes) -> None:
     InputError there, so any exception of the decoder is acceptable here) then convert."""
     from rigcal.io.recordings import bag
     from rigcal.io.config.intrinsics import camera_from_info
-    from rigcal.io.pointcloud import radar_frame_from_cloud
+    from rigcal.io.clouds import radar_frame_from_cloud
     from rigcal.io.recordings.pointcloud2 import decode_pointcloud2
 
     deserialize = getattr(ts, serialize.replace("serialize", "deserialize"))

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from rigcal.io.recordings.bag import CameraInfo, write_recording
-from rigcal.io.pointcloud import pcd_bytes, ply_bytes
+from rigcal.io.clouds import pcd_bytes, ply_bytes
 from rigcal.recording import ImageFrame, PointCloudFrame, RadarFrame
 
 NS = 1_000_000_000

@@ -64,7 +64,7 @@ def run(args, console) -> int:
     from rigcal.io.results.calibration_files import read_initial_poses
     from rigcal.problem.calibrate import CalibrationOptions
     from rigcal.io.dataset.manifest import load_manifest
-    from rigcal.io.pointcloud import read_point_cloud
+    from rigcal.io.clouds import read_point_cloud
 
     dataset = load_manifest(args.manifest)
     text = read_text(args.labels, "labels file")

@@ -12,7 +12,7 @@ Grouped by what is read or written, in the order data flows through a calibratio
 * :mod:`rigcal.io.dataset` - detections ready to calibrate: the ``rig.yaml`` manifest and the
   original tool's detection, accumulator and ignore files;
 * :mod:`rigcal.io.results` - calibration results, their ROS/URDF exports and reading them back;
-* :mod:`rigcal.io.pointcloud` - PCD/PLY/NPY point cloud files (frames of folder recordings,
+* :mod:`rigcal.io.clouds` - PCD/PLY/NPY point cloud files (frames of folder recordings,
   mocap template clouds).
 
 Shared by all: :mod:`rigcal.io.atomic` (atomic writes), :mod:`rigcal.io.limits` (what a file

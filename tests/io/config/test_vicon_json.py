@@ -11,7 +11,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 from rigcal.errors import InputError
-from rigcal.io.pointcloud import read_point_cloud
+from rigcal.io.clouds import read_point_cloud
 from rigcal.io.config.vicon_json import (
     OptimizerConfig,
     optimizer_config_json_text,

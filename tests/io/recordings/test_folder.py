@@ -18,7 +18,7 @@ from rigcal.io.recordings.folder import (
     write_folder_recording,
     write_radar_csv,
 )
-from rigcal.io.pointcloud import write_pcd, write_ply
+from rigcal.io.clouds import write_pcd, write_ply
 from rigcal.recording import ImageFrame, PointCloudFrame, RadarFrame
 
 T0 = 1_596_000_000_000_000_000

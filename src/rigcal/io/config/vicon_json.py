@@ -179,7 +179,7 @@ def _diamond_side(lidar: np.ndarray | None, rows: int, cols: int, sq: float) -> 
 
 
 def _template_points(template: Any, source: str) -> np.ndarray:
-    from rigcal.io.pointcloud import read_point_cloud
+    from rigcal.io.clouds import read_point_cloud
     from rigcal.recording import PointCloudFrame
 
     if isinstance(template, PointCloudFrame):
@@ -266,7 +266,7 @@ def parse_vicon_target(text: str, source: str = "target JSON", *, name: str | No
         if cloud_name and template_dir is not None:
             path = Path(template_dir) / cloud_name
             if path.is_file():
-                from rigcal.io.pointcloud import read_point_cloud
+                from rigcal.io.clouds import read_point_cloud
 
                 points = read_point_cloud(path, "template").points_xyz
             else:
@@ -337,7 +337,7 @@ def write_vicon_target(path: str | os.PathLike[str], target: Target,
     """Write :func:`vicon_target_json_text` atomically; when ``template_cloud`` is given the
     template is written there too (binary PCD, relative to the JSON file)."""
     from rigcal.io.atomic import atomic_write_text
-    from rigcal.io.pointcloud import write_pcd
+    from rigcal.io.clouds import write_pcd
     from rigcal.recording import PointCloudFrame
 
     p = Path(path)

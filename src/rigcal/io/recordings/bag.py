@@ -45,7 +45,7 @@ import numpy as np
 from rigcal.dataset import SensorKind
 from rigcal.errors import InputError
 from rigcal.io.limits import os_error_text
-from rigcal.io.pointcloud import radar_frame_from_cloud
+from rigcal.io.clouds import radar_frame_from_cloud
 from rigcal.io.recordings.images import decode_image_bytes, encode_png
 from rigcal.io.recordings.pointcloud2 import (
     decode_pointcloud2,

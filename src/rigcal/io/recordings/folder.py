@@ -43,7 +43,7 @@ from rigcal.errors import InputError
 from rigcal.io.limits import MAX_ABS, path_stat, read_limited
 from rigcal.io._text import read_text
 from rigcal.io.atomic import atomic_write_bytes, atomic_write_text
-from rigcal.io.pointcloud import (
+from rigcal.io.clouds import (
     DEFAULT_RCS_FIELDS,
     POINT_CLOUD_SUFFIXES,
     npy_bytes,

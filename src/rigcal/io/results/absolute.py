@@ -23,7 +23,6 @@ from pathlib import Path
 from typing import Any, Callable, Mapping, NamedTuple, Sequence
 
 import numpy as np
-import yaml
 
 from rigcal.absolute.result import AbsoluteResult
 from rigcal.errors import InputError

@@ -19,7 +19,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from rigcal.errors import InputError
 from rigcal.geometry.se3 import invert

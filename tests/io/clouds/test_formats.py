@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from rigcal.errors import InputError
-from rigcal.io.pointcloud import (
+from rigcal.io.clouds import (
     lzf_compress,
     lzf_decompress,
     npy_bytes,
@@ -27,7 +27,7 @@ from rigcal.io.pointcloud import (
 )
 from rigcal.recording import PointCloudFrame
 
-DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
+DATA = Path(__file__).resolve().parents[3].parent / "shared" / "data"
 
 
 def make_cloud(seed: int = 0, n: int = 60, organized: tuple[int, int] | None = None,
@@ -109,7 +109,7 @@ def test_lzf_refuses_an_impossible_announced_size_before_decompressing():
 
 @pytest.mark.parametrize("compiled", [True, False])
 def test_lzf_bomb_stops_at_the_announced_size(monkeypatch, compiled):
-    from rigcal.io import pointcloud
+    from rigcal.io.clouds import lzf as pointcloud
 
     if compiled and pointcloud._clzf is None:
         pytest.skip("python-neo-lzf not installed")
@@ -125,7 +125,7 @@ def test_lzf_bomb_stops_at_the_announced_size(monkeypatch, compiled):
 
 
 def test_compiled_and_pure_python_lzf_read_each_other(monkeypatch):
-    from rigcal.io import pointcloud
+    from rigcal.io.clouds import lzf as pointcloud
 
     if pointcloud._clzf is None:
         pytest.skip("python-neo-lzf not installed")
@@ -144,7 +144,7 @@ def test_compiled_and_pure_python_lzf_read_each_other(monkeypatch):
 
 
 def test_pcd_round_trip_without_the_compiled_lzf(monkeypatch):
-    from rigcal.io import pointcloud
+    from rigcal.io.clouds import lzf as pointcloud
 
     monkeypatch.setattr(pointcloud, "_clzf", None)
     cloud = make_cloud(seed=9)
@@ -270,7 +270,7 @@ def test_ring_is_written_as_uint16_and_read_from_any_integer_type():
 
 @pytest.mark.parametrize("newline", [b"\n", b"\r\n", b"\r"])
 def test_pcd_ascii_fast_parser_matches_the_line_by_line_one(monkeypatch, newline):
-    from rigcal.io import pointcloud
+    from rigcal.io.clouds import pcd as pointcloud
 
     cloud = make_cloud(seed=8, n=300)
     head, body = pcd_bytes(cloud, "ascii").split(b"DATA ascii\n")

@@ -297,10 +297,10 @@ def read_extrinsics_from_bag(path: str | os.PathLike[str],
     simulated bags publish ground-truth calibrations) are kept only when they never change over
     the bag (every matrix entry within ``constant_tol_m`` of the first); moving transforms such
     as mocap poses are skipped and logged."""
-    from rigcal.io.recordings.bag import open_recording
+    from rigcal.io.recordings.bag import open_bag
     from rigcal.mocap.streams import _read_tf_edges, _tf_topics
 
-    with open_recording(path) as rec:
+    with open_bag(path) as rec:
         source = str(rec.path)
         present = _tf_topics(rec, topics, source)
         static = [t for t in static_topics if t in present]

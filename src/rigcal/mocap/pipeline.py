@@ -202,10 +202,10 @@ def read_mocap_streams(config: MocapConfig) -> tuple[PoseStream, dict[str, PoseS
     streams: dict[str, PoseStream] = {}
     topics = {k: s.topic for k, (_, s) in specs.items() if s.kind == "topic"}
     if topics:
-        from rigcal.io.recordings.bag import open_recording
+        from rigcal.io.recordings.bag import open_bag
         from rigcal.mocap.streams import POSE_MSGTYPES, read_pose_topics
 
-        with open_recording(config.recording) as rec:
+        with open_bag(config.recording) as rec:
             available = rec.topics()
         for k, topic in topics.items():
             msgtype = available.get(topic)

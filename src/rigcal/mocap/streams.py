@@ -749,13 +749,13 @@ def read_tf_streams(path: str | os.PathLike[str],
     InputError when a topic is missing or not a TFMessage, a frame is unknown (known child
     frames are listed), has no moving transform in its chain, does not reach ``mocap_frame``,
     or has two parents."""
-    from rigcal.io.recordings.bag import open_recording
+    from rigcal.io.recordings.bag import open_bag
 
     _check_max_gap(max_gap_s)
     wanted = dict(children) if isinstance(children, Mapping) else {str(c): c for c in children}
     if not wanted:
         raise InputError(f"{path}: no child frames requested")
-    with open_recording(path) as rec:
+    with open_bag(path) as rec:
         source = str(rec.path)
         present = _tf_topics(rec, topics, source)
         edges = _read_tf_edges(rec, present, [t for t in static_topics if t in present], source)
@@ -830,13 +830,13 @@ def read_pose_topics(path: str | os.PathLike[str],
     PoseStamped (``pose``), PoseWithCovarianceStamped and Odometry (``pose.pose``); each gives
     ``T_<header.frame_id>_<body>``. The stream's ``frame_id`` is the messages' header frame id,
     which must be the same for every message of a topic."""
-    from rigcal.io.recordings.bag import open_recording
+    from rigcal.io.recordings.bag import open_bag
 
     wanted = dict(topics) if isinstance(topics, Mapping) else {
         str(t).lstrip("/") or str(t): t for t in topics}
     if not wanted:
         raise InputError(f"{path}: no pose topics requested")
-    with open_recording(path) as rec:
+    with open_bag(path) as rec:
         source = str(rec.path)
         available = rec.topics()
         for name, topic in wanted.items():
@@ -882,9 +882,9 @@ class PoseSources(NamedTuple):
 def list_pose_sources(path: str | os.PathLike[str],
                       static_topics: Sequence[str] = ("/tf_static",)) -> PoseSources:
     """The TF frames and pose topics in a bag (reads every TFMessage once)."""
-    from rigcal.io.recordings.bag import open_recording
+    from rigcal.io.recordings.bag import open_bag
 
-    with open_recording(path) as rec:
+    with open_bag(path) as rec:
         source = str(rec.path)
         available = rec.topics()
         tf_topics = [t for t, ty in available.items() if ty == TF_MSGTYPE]

@@ -15,7 +15,7 @@ from rigcal.io.recordings.bag import (
     CameraInfo,
     decode_compressed_image_msg,
     decode_image_msg,
-    open_recording,
+    open_bag,
     write_recording,
 )
 from rigcal.io.recordings.pointcloud2 import decode_pointcloud2, encode_pointcloud2, make_header
@@ -107,7 +107,7 @@ def assert_same_frame(a, b) -> None:
 def test_bag_round_trip_gives_the_same_frames(tmp_path, fmt):
     written = make_frames()
     path = write_recording(bag_path(tmp_path, fmt), written, fmt)
-    with open_recording(path) as rec:
+    with open_bag(path) as rec:
         assert rec.topics() == {
             "/velodyne_points": "sensor_msgs/msg/PointCloud2",
             "/stereo/points": "sensor_msgs/msg/PointCloud2",
@@ -148,7 +148,7 @@ def test_bag_round_trip_gives_the_same_frames(tmp_path, fmt):
 @pytest.mark.parametrize("fmt", FORMATS)
 def test_raw_messages_of_chosen_topics_in_bag_order(tmp_path, fmt):
     path = write_recording(bag_path(tmp_path, fmt), make_frames(), fmt)
-    with open_recording(path) as rec:
+    with open_bag(path) as rec:
         got = list(rec.messages(["/camera/camera_info", "/radar/detections"]))
         with pytest.raises(InputError, match="topic /x not in bag"):
             list(rec.messages(["/x"]))
@@ -163,7 +163,7 @@ def test_raw_messages_of_chosen_topics_in_bag_order(tmp_path, fmt):
 @pytest.mark.parametrize("fmt", FORMATS)
 def test_time_window_and_subset_of_sensors(tmp_path, fmt):
     path = write_recording(bag_path(tmp_path, fmt), make_frames(), fmt)
-    with open_recording(path) as rec:
+    with open_bag(path) as rec:
         got = list(rec.frames({"l": ("/velodyne_points", "lidar"), "r": ("/radar/detections",
                                                                           "radar")},
                               start_ns=T0 + 70_000_000, end_ns=T0 + 200_000_000))
@@ -175,7 +175,7 @@ def test_float64_xyz_and_overwrite_is_atomic(tmp_path):
     rng = np.random.default_rng(8)
     cloud = PointCloudFrame("l", T0, rng.normal(size=(10, 3)), frame_id="f")
     path = write_recording(tmp_path / "a.bag", {"/p": [cloud]}, xyz_dtype=np.float64)
-    with open_recording(path) as rec:
+    with open_bag(path) as rec:
         (back,) = rec.frames({"l": ("/p", "lidar")})
     assert np.array_equal(back.points_xyz, cloud.points_xyz)
     # a failing write leaves the old bag untouched and no temporary files behind
@@ -189,11 +189,11 @@ def test_float64_xyz_and_overwrite_is_atomic(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.bag"]
     # a successful write replaces it (file and directory bags alike)
     write_recording(path, {"/q": [cloud]})
-    with open_recording(path) as rec:
+    with open_bag(path) as rec:
         assert list(rec.topics()) == ["/q"]
     d = write_recording(tmp_path / "d", {"/p": [cloud]}, "rosbag2-mcap")
     write_recording(d, {"/q": [cloud]}, "rosbag2-sqlite3")
-    with open_recording(d) as rec:
+    with open_bag(d) as rec:
         assert list(rec.topics()) == ["/q"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.bag", "d"]
 
@@ -247,7 +247,7 @@ def test_header_stamps_not_receive_times_and_zero_stamp_fallback(tmp_path, fmt):
         ("/a", pc, T0 + 1_100_000_000, cloud_msg(store, T0 + 550_000_000, 5)),
     ]
     path = write_raw(bag_path(tmp_path, fmt), fmt, messages)
-    with open_recording(path) as rec:
+    with open_bag(path) as rec:
         got = list(rec.frames({"a": ("/a", "lidar"), "b": ("/b", "lidar"), "c": ("/c", "lidar")}))
     assert [(f.sensor, f.t_ns - T0, f.points_xyz[0, 0]) for f in got] == [
         ("a", 50, 2), ("b", 100, 1), ("a", 550_000_000, 5), ("b", 600_000_000, 3),
@@ -259,7 +259,7 @@ def test_ros2_bag_without_embedded_definitions_uses_humble(tmp_path):
     db = next(path.glob("*.db3"))
     with sqlite3.connect(db) as con:
         con.execute("DELETE FROM message_definitions")
-    with open_recording(path) as rec:
+    with open_bag(path) as rec:
         frames = list(rec.frames({"lidar": ("/velodyne_points", "lidar")}))
         assert rec.camera_info("/camera/camera_info").width == 8
     assert len(frames) == 3
@@ -275,7 +275,7 @@ def test_custom_types_are_read_from_the_bag_definitions(tmp_path, fmt):
     msg = store.types["my_radar/msg/Target"](range=5.0, azimuth=0.1, rcs=3.0)
     path = write_raw(bag_path(tmp_path, fmt), fmt, [("/t", "my_radar/msg/Target", T0, msg)],
                      typestore=store)
-    with open_recording(path) as rec:
+    with open_bag(path) as rec:
         assert rec.topics() == {"/t": "my_radar/msg/Target"}
         with pytest.raises(InputError, match=r"topic /t \(sensor 'r'\) has type "
                                              "my_radar/msg/Target; expected sensor_msgs/msg/"
@@ -288,24 +288,24 @@ def test_custom_types_are_read_from_the_bag_definitions(tmp_path, fmt):
 
 def test_not_a_bag(tmp_path):
     with pytest.raises(InputError, match=r"missing\.bag: bag not found"):
-        open_recording(tmp_path / "missing.bag")
+        open_bag(tmp_path / "missing.bag")
     junk = tmp_path / "junk.bag"
     junk.write_bytes(b"this is not a bag at all")
     with pytest.raises(InputError, match=r"junk\.bag is not a ROS1 or ROS2 bag: "):
-        open_recording(junk)
+        open_bag(junk)
     (tmp_path / "dir").mkdir()
     with pytest.raises(InputError, match=r"dir is not a ROS1 or ROS2 bag: directory has no "
                                          "metadata.yaml"):
-        open_recording(tmp_path / "dir")
+        open_bag(tmp_path / "dir")
     renamed = tmp_path / "rec.bagfile"
     renamed.write_bytes(b"#ROSBAG V2.0\n" + bytes(100))
     with pytest.raises(InputError, match=r"rec\.bagfile is not a ROS1 or ROS2 bag: it looks "
                                          r"like a ROS1 bag; name it \*\.bag"):
-        open_recording(renamed)
+        open_bag(renamed)
     (tmp_path / "meta").mkdir()
     (tmp_path / "meta" / "metadata.yaml").write_text("rosbag2_bagfile_information: [1, 2\n")
     with pytest.raises(InputError, match=r"meta is not a ROS1 or ROS2 bag: "):
-        open_recording(tmp_path / "meta" / "metadata.yaml")
+        open_bag(tmp_path / "meta" / "metadata.yaml")
 
 
 def test_corrupt_bag(tmp_path):
@@ -315,13 +315,13 @@ def test_corrupt_bag(tmp_path):
     data = path.read_bytes()
     path.write_bytes(data[: len(data) // 2])
     with pytest.raises(InputError, match=r"c\.bag (is not a ROS1 or ROS2 bag|: cannot read)"):
-        with open_recording(path) as rec:
+        with open_bag(path) as rec:
             list(rec.frames({"l": ("/p", "lidar")}))
 
 
 def test_topic_and_kind_errors(tmp_path):
     path = write_recording(tmp_path / "r.bag", make_frames())
-    with open_recording(path) as rec:
+    with open_bag(path) as rec:
         with pytest.raises(InputError, match=r"r\.bag: topic /x not in bag; topics: "
                                              r"\['/camera/camera_info', '/camera/image_raw'"):
             list(rec.frames({"lidar": ("/x", "lidar")}))
@@ -376,7 +376,7 @@ def test_message_content_errors(tmp_path, fmt):
         ("/i", "sensor_msgs/msg/Image", T0, mono16),
         ("/j", "sensor_msgs/msg/CompressedImage", T0, bad_jpeg),
     ])
-    with open_recording(path) as rec:
+    with open_bag(path) as rec:
         with pytest.raises(InputError, match=r": /p: point cloud has fields \['a', 'b', 'c'\], "
                                              "expected x, y, z"):
             list(rec.frames({"l": ("/p", "lidar")}))

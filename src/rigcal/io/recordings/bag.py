@@ -1,6 +1,6 @@
 """ROS 1 and ROS 2 bags: read sensor frames out of a recording, and write recordings.
 
-Reading (:func:`open_recording`) goes through ``rosbags.highlevel.AnyReader`` and understands
+Reading (:func:`open_bag`) goes through ``rosbags.highlevel.AnyReader`` and understands
 
 * a ROS 1 bag (a ``.bag`` file), and
 * a ROS 2 bag (a directory with ``metadata.yaml``, storage ``sqlite3`` or ``mcap``; a bare
@@ -61,7 +61,7 @@ __all__ = [
     "Recording",
     "decode_compressed_image_msg",
     "decode_image_msg",
-    "open_recording",
+    "open_bag",
     "write_recording",
 ]
 
@@ -215,7 +215,7 @@ def _detail(exc: BaseException) -> str:
 
 
 class Recording:
-    """An open bag. Use as a context manager (``with open_recording(p) as rec: ...``) or call
+    """An open bag. Use as a context manager (``with open_bag(p) as rec: ...``) or call
     :meth:`close`. Topics are named as in the bag; message types as ``pkg/msg/Type``."""
 
     def __init__(self, path: Path, reader: Any) -> None:
@@ -420,7 +420,7 @@ class Recording:
         return cloud
 
 
-def open_recording(path: str | os.PathLike[str]) -> Recording:
+def open_bag(path: str | os.PathLike[str]) -> Recording:
     """Open a ROS 1 bag (``.bag``) or a ROS 2 bag (a directory with ``metadata.yaml``, or a
     ``.db3``/``.mcap`` file). Returns an open :class:`Recording` (a context manager)."""
     from rosbags.highlevel import AnyReader

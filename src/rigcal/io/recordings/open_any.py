@@ -13,7 +13,7 @@ from pathlib import Path
 
 from rigcal.errors import InputError
 from rigcal.io.limits import os_error_text, path_stat
-from rigcal.io.recordings.bag import Recording, open_recording
+from rigcal.io.recordings.bag import Recording, open_bag
 from rigcal.io.recordings.folder import FolderRecording
 
 __all__ = ["open_any"]
@@ -23,7 +23,7 @@ _ROS2_STORAGE = (".db3", ".mcap")
 
 def open_any(path: str | os.PathLike[str]) -> Recording | FolderRecording:
     """A bag (``.bag``/``.db3``/``.mcap`` file, or a directory with ``metadata.yaml``) via
-    :func:`rigcal.io.recordings.bag.open_recording`, else a folder recording.
+    :func:`rigcal.io.recordings.bag.open_bag`, else a folder recording.
 
     A directory holding ``.db3``/``.mcap`` files but no ``metadata.yaml`` is refused as a ROS 2
     bag with its metadata missing (not read as an empty folder recording)."""
@@ -46,4 +46,4 @@ def open_any(path: str | os.PathLike[str]) -> Recording | FolderRecording:
                 "rebuilds it), a .bag file or a folder with one subfolder per sensor"
             )
         return FolderRecording(p)
-    return open_recording(p)
+    return open_bag(p)

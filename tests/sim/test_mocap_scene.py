@@ -197,7 +197,7 @@ def test_bad_sensors_are_refused():
         _sensor(kind="camera", model=camera.model, azimuth_fov_deg=(-10, 10))
     with pytest.raises(InputError, match=r"azimuth_fov_deg: expected -180 <= lo < hi <= 180"):
         _sensor(azimuth_fov_deg=(30, -30))
-    with pytest.raises(InputError, match="T_robot_sensor: the 3x3 block is not a proper rotation"):
+    with pytest.raises(InputError, match="T_robot_sensor: not rigid: the 3x3 block must be a rotation"):
         _sensor(T_robot_sensor=np.diag([1.0, 1.0, -1.0, 1.0]))
     with pytest.raises(InputError, match="topic must start with '/'"):
         _sensor(topic="x")

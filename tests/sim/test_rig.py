@@ -312,7 +312,7 @@ def test_sim_sensor_defaults_and_validation() -> None:
     )
     r3 = SimSensor("r3", SensorKind.RADAR3D, np.eye(4))
     assert r3.elevation_sigma_deg == 0.5
-    with pytest.raises(InputError, match="'bad'.T_rig_sensor: the 3x3 block is not a proper"):
+    with pytest.raises(InputError, match="'bad'.T_rig_sensor: not rigid: the 3x3 block must be a"):
         SimSensor("bad", SensorKind.LIDAR, np.diag([1.0, 1.0, -1.0, 1.0]))
     with pytest.raises(InputError, match=r"'s'.sigma_m must be >= 0"):
         SimSensor("s", SensorKind.LIDAR, np.eye(4), sigma_m=-1.0)

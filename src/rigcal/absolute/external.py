@@ -42,7 +42,7 @@ from rigcal.dataset import BoardGeometry
 from rigcal.detect.lidar import LidarDetectorConfig, detect_board_lidar
 from rigcal.detect.result import DetectionResult
 from rigcal.errors import InputError
-from rigcal.geometry.se3 import as_rigid as _check_rigid
+from rigcal.geometry.se3 import as_rigid
 from rigcal.recording import PointCloudFrame
 from rigcal.sim.raw.lidar import range_returns
 from rigcal.sim.raw.scene import Scene, check_sim_call
@@ -154,7 +154,7 @@ def board_window(
     """The angular box around the board's plate seen from the scanner at ``T_world_scanner``
     (scanner frame -> world), widened by ``margin_deg`` on each side (so some wall and ground
     around the plate are scanned too; the detector needs returns through the holes)."""
-    T = _check_rigid(T_world_scanner, "board_window: T_world_scanner")
+    T = as_rigid(T_world_scanner, "board_window: T_world_scanner")
     margin = _finite(margin_deg, "board_window: margin_deg", lo=0.0)
     corners = scene.plate_corners_world()
     p = (corners - T[:3, 3]) @ T[:3, :3]  # into the scanner frame

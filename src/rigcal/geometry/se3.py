@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from rigcal.errors import InputError
@@ -81,22 +83,40 @@ def adjoint(T: np.ndarray) -> np.ndarray:
     return out
 
 
-def as_rigid(T: np.ndarray, what: str, atol: float = 1e-6) -> np.ndarray:
-    """A read-only float copy of a rigid (4, 4) transform given by a user, or InputError naming
-    ``what`` and saying what was expected (finite 4x4, proper rotation block, last row 0 0 0 1)."""
+def as_rigid(T: Any, what: str, tol: float = 1e-6) -> np.ndarray:
+    """A read-only rigid (4, 4) float copy of a transform given by a user or a file, or
+    InputError naming ``what`` and saying what was expected: a finite 4x4 matrix of numbers
+    (translations within the metre limit of :mod:`rigcal.io.limits`), last row [0, 0, 0, 1],
+    the 3x3 block orthonormal within ``tol`` with det +1.
+
+    A block that is orthonormal only to print precision (error above 1e-12, e.g. written with
+    6 decimals) is replaced by the nearest rotation (SVD), so that compositions stay rigid and
+    the angles written out describe exactly the matrix returned; exact rotations are kept bit
+    for bit. The one validator for transforms: result files, URDF, mocap and simulators."""
     try:
         m = np.array(T, dtype=float)
     except (TypeError, ValueError):
-        raise InputError(f"{what}: expected a 4x4 matrix of numbers") from None
-    if m.shape != (4, 4) or not np.all(np.isfinite(m)):
-        raise InputError(f"{what}: expected a finite 4x4 transform, got shape {m.shape}")
+        raise InputError(f"{what}: expected a 4x4 matrix of numbers, got {type(T).__name__}") from None
+    if m.shape != (4, 4):
+        raise InputError(f"{what}: expected a 4x4 matrix, got shape {m.shape}")
+    if not np.all(np.isfinite(m)):
+        raise InputError(f"{what}: expected finite numbers, got NaN or infinity")
     from rigcal.io.limits import check_finite
 
     check_finite(m, what, "entry", "m")  # a translation of 1e300 m is no rig
+    if not np.allclose(m[3], [0.0, 0.0, 0.0, 1.0], atol=1e-9, rtol=0.0):
+        raise InputError(f"{what}: not rigid: last row must be [0, 0, 0, 1], got {m[3].tolist()}")
     R = m[:3, :3]
-    if not np.allclose(R.T @ R, np.eye(3), atol=atol) or np.linalg.det(R) < 0:
-        raise InputError(f"{what}: the 3x3 block is not a proper rotation")
-    if not np.allclose(m[3], [0.0, 0.0, 0.0, 1.0]):
-        raise InputError(f"{what}: last row must be [0, 0, 0, 1], got {m[3].tolist()}")
+    err = float(np.max(np.abs(R.T @ R - np.eye(3))))
+    det = float(np.linalg.det(R))
+    if err > tol or det <= 0:
+        raise InputError(
+            f"{what}: not rigid: the 3x3 block must be a rotation (orthonormal within {tol:g}, "
+            f"det +1), got |R^T R - I| = {err:.3g}, det = {det:.6g}"
+        )
+    if err > 1e-12:
+        U, _, Vt = np.linalg.svd(R)
+        m[:3, :3] = U @ Vt
+    m[3] = (0.0, 0.0, 0.0, 1.0)
     m.setflags(write=False)
     return m

@@ -42,7 +42,7 @@ import numpy as np
 
 from rigcal.errors import InputError
 from rigcal.geometry.frames import Transform
-from rigcal.geometry.se3 import invert
+from rigcal.geometry.se3 import as_rigid, invert
 
 __all__ = [
     "Extrinsics",
@@ -50,7 +50,6 @@ __all__ = [
     "parse_extrinsics_json",
     "read_extrinsics_from_bag",
     "read_extrinsics_json",
-    "rigid_matrix",
     "write_extrinsics_json",
 ]
 
@@ -58,37 +57,6 @@ log = logging.getLogger(__name__)
 
 RIGID_TOL = 1e-3
 """Largest ``|R^T R - I|`` accepted for a rotation block written with few decimals."""
-
-
-def rigid_matrix(T: Any, what: str, tol: float = RIGID_TOL) -> np.ndarray:
-    """A read-only rigid (4, 4) float array from ``T``, or InputError naming ``what``.
-
-    The rotation block must be orthonormal within ``tol`` with det > 0 and the last row
-    ``[0, 0, 0, 1]``; a block orthonormal only to print precision (error above 1e-12) is
-    replaced by the nearest rotation (SVD) so that composition stays rigid."""
-    try:
-        m = np.array(T, dtype=float)
-    except (TypeError, ValueError):
-        raise InputError(f"{what}: expected a 4x4 matrix of numbers") from None
-    if m.shape != (4, 4):
-        raise InputError(f"{what}: expected a 4x4 matrix, got shape {m.shape}")
-    if not np.all(np.isfinite(m)):
-        raise InputError(f"{what}: expected finite numbers, got NaN or infinity")
-    if not np.allclose(m[3], [0.0, 0.0, 0.0, 1.0], atol=1e-9, rtol=0.0):
-        raise InputError(f"{what}: not rigid: last row must be [0, 0, 0, 1], got {m[3].tolist()}")
-    R = m[:3, :3]
-    err = float(np.max(np.abs(R.T @ R - np.eye(3))))
-    det = float(np.linalg.det(R))
-    if err > tol or det <= 0:
-        raise InputError(
-            f"{what}: not rigid: the 3x3 block must be a rotation (orthonormal within {tol:g}, "
-            f"det +1), got |R^T R - I| = {err:.3g}, det = {det:.6g}"
-        )
-    if err > 1e-12:  # rounded print: use the nearest rotation; exact ones are kept bit for bit
-        U, _, Vt = np.linalg.svd(R)
-        m[:3, :3] = U @ Vt
-    m.setflags(write=False)
-    return m
 
 
 def _frame_ok(name: Any, what: str) -> str:
@@ -126,7 +94,7 @@ class Extrinsics:
                     f"{pairs[pair][1]} and {to} <- {frm}); give one"
                 )
             pairs[pair] = (to, frm)
-            clean[(to, frm)] = rigid_matrix(T, f"{where}: transform {to} <- {frm}")
+            clean[(to, frm)] = as_rigid(T, f"{where}: transform {to} <- {frm}", RIGID_TOL)
         object.__setattr__(self, "transforms", MappingProxyType(clean))
         object.__setattr__(self, "metadata", MappingProxyType(dict(self.metadata)))
 
@@ -246,8 +214,8 @@ def parse_extrinsics_json(text: str, source: str = "extrinsics JSON") -> Extrins
             raise InputError(f"{where}.transform: expected 16 numbers, got {values!r}")
         if (to, frm) in transforms or (frm, to) in transforms:
             raise InputError(f"{where}: a second transform between '{to}' and '{frm}'")
-        transforms[(to, frm)] = rigid_matrix(np.reshape(values, (4, 4)),
-                                             f"{where}.transform ({to} <- {frm})")
+        transforms[(to, frm)] = as_rigid(np.reshape(values, (4, 4)),
+                                         f"{where}.transform ({to} <- {frm})", RIGID_TOL)
     return Extrinsics(transforms, source, metadata)
 
 

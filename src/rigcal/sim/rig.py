@@ -98,7 +98,6 @@ def _as_rng(rng: np.random.Generator | int) -> np.random.Generator:
     )
 
 
-_check_rigid = as_rigid
 
 
 @dataclass(frozen=True, eq=False)
@@ -145,7 +144,7 @@ class SimSensor:
             else SensorKind.parse(self.kind, f"sim sensor '{self.name}'")
         )
         object.__setattr__(self, "kind", kind)
-        T = _check_rigid(self.T_rig_sensor, f"sim sensor '{self.name}'.T_rig_sensor")
+        T = as_rigid(self.T_rig_sensor, f"sim sensor '{self.name}'.T_rig_sensor")
         object.__setattr__(self, "T_rig_sensor", T)
         defaults = _KIND_DEFAULTS[kind]
         for f in fields(self):

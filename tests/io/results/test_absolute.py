@@ -162,8 +162,8 @@ def test_parse_minimal_and_errors():
         ("body_frame: {name: b}\nsensors: {}\n", r"a.yaml: sensors: expected a non-empty mapping"),
         ("body_frame: {name: b}\nsensors: {x: 3}\n", r"a.yaml: sensors.x: expected a mapping"),
         ("body_frame: {name: b}\nsensors: {x: {}}\n", r"sensors.x: missing key 'T_body_sensor'"),
-        (GOOD.replace("[0, 0, 0, 1]]", "[0, 0, 0, 2]]"), r"sensors.lidar1.T_body_sensor: last row"),
-        (GOOD.replace("[[1, 0, 0, 1.2]", "[[2, 0, 0, 1.2]"), r"T_body_sensor: the 3x3 block"),
+        (GOOD.replace("[0, 0, 0, 1]]", "[0, 0, 0, 2]]"), r"sensors.lidar1.T_body_sensor: not rigid: last row"),
+        (GOOD.replace("[[1, 0, 0, 1.2]", "[[2, 0, 0, 1.2]"), r"T_body_sensor: not rigid: the 3x3 block"),
         (GOOD.replace("[[1, 0, 0, 1.2], [0, 1, 0, 0], ", "["), r"T_body_sensor: expected a 4x4"),
         (GOOD.replace("velodyne", "base_link"), r"frame 'base_link' is the body frame itself"),
         (GOOD + "  lidar2:\n    frame_id: velodyne\n    T_body_sensor: "

@@ -131,5 +131,5 @@ def test_scan_validation(board_scene):
         scan("hdl", np.eye(4), board_scene, np.random.default_rng(0))
     with pytest.raises(InputError, match="rng must be a numpy.random.Generator"):
         scan(vlp16(), np.eye(4), board_scene, 0)
-    with pytest.raises(InputError, match="T_world_lidar: expected a finite 4x4"):
+    with pytest.raises(InputError, match="T_world_lidar: expected a 4x4 matrix"):
         scan(vlp16(), np.eye(3), board_scene, np.random.default_rng(0))

@@ -143,5 +143,5 @@ def test_detections_validation():
     scene = Scene(facing_board(5.0, 0.5))
     with pytest.raises(InputError, match="model must be a RadarModel"):
         detections(None, T_RADAR, scene, np.random.default_rng(0))
-    with pytest.raises(InputError, match="T_world_radar: expected a finite 4x4"):
+    with pytest.raises(InputError, match="T_world_radar: expected a 4x4 matrix"):
         detections(automotive_2d(), np.eye(3), scene, np.random.default_rng(0))

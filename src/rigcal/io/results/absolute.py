@@ -34,7 +34,7 @@ from rigcal.io.results.tf_export import (
     ros2_run_commands,
     write_tf_export,
 )
-from rigcal.io.results.urdf import check_rigid
+from rigcal.geometry.se3 import as_rigid
 
 __all__ = [
     "ABSOLUTE_JSON_NAME",
@@ -192,7 +192,7 @@ def parse_absolute_yaml(text: str, source: str = ABSOLUTE_YAML_NAME) -> Absolute
             raise InputError(f"{where}: frame '{frame}' appears twice")
         if frame == parent:
             raise InputError(f"{where}: frame '{frame}' is the body frame itself")
-        out[frame] = check_rigid(entry["T_body_sensor"], f"{where}.T_body_sensor")
+        out[frame] = as_rigid(entry["T_body_sensor"], f"{where}.T_body_sensor")
     return AbsoluteTransforms(parent, out)
 
 

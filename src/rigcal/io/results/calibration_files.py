@@ -33,7 +33,7 @@ class CalibrationTransforms:
 
 
 def _matrix(value: Any, where: str) -> np.ndarray:
-    return as_rigid(value, where, atol=1e-5)
+    return as_rigid(value, where, tol=1e-5)
 
 
 def _kinds(sensors: Mapping[str, Any]) -> dict[str, str]:

@@ -24,7 +24,8 @@ import rigcal
 from rigcal.errors import InputError
 from rigcal.io._text import dump_yaml
 from rigcal.io.atomic import atomic_write_text
-from rigcal.io.results.urdf import check_rigid, format_float, origin_from_matrix
+from rigcal.geometry.se3 import as_rigid
+from rigcal.io.results.urdf import format_float, origin_from_matrix
 
 TF_PERIOD_MS = 100
 CONVENTION = (
@@ -59,7 +60,7 @@ def _poses(transforms: Mapping[str, Any], parent_frame: str) -> list[_Pose]:
         _frame(child, f"child frame {child!r}")
         if child == parent_frame:
             raise InputError(f"child frame '{child}' is the parent frame itself")
-        m = check_rigid(T, f"T_{parent_frame}_{child}")
+        m = as_rigid(T, f"T_{parent_frame}_{child}")
         xyz, rpy = origin_from_matrix(m)
         poses.append(_Pose(child, m, xyz, rpy))
     return poses

@@ -41,7 +41,7 @@ import numpy as np
 
 from rigcal.errors import GeometryError, InputError
 from rigcal.io.limits import read_limited
-from rigcal.geometry.se3 import from_rt, invert
+from rigcal.geometry.se3 import as_rigid, from_rt, invert
 from rigcal.geometry.so3 import matrix_from_rpy, rpy_from_matrix
 from rigcal.io._text import is_finite_number, load_yaml, type_name
 from rigcal.io.atomic import atomic_write_bytes
@@ -228,39 +228,6 @@ def origin_from_matrix(
     T = np.asarray(T_parent_child, dtype=float)
     xyz = tuple(float(v) for v in T[:3, 3])
     return xyz, rpy_from_rotation(T[:3, :3])  # type: ignore[return-value]
-
-
-def check_rigid(T: Any, what: str) -> np.ndarray:
-    """A finite rigid (4, 4) array (a new one) or InputError naming ``what`` and saying what
-    was expected: last row [0, 0, 0, 1], the 3x3 block orthonormal to 1e-6 with det +1.
-
-    A rotation block that is orthonormal only to print precision (error above 1e-12, e.g. a
-    matrix written with 6 decimals) is replaced by the nearest rotation (SVD), so that the
-    angles written out describe exactly the matrix the caller gets back."""
-    try:
-        m = np.array(T, dtype=float)
-    except (TypeError, ValueError):
-        raise InputError(
-            f"{what}: expected a 4x4 matrix of numbers, got {type_name(T)}"
-        ) from None
-    if m.shape != (4, 4):
-        raise InputError(f"{what}: expected a 4x4 matrix, got shape {m.shape}")
-    if not np.all(np.isfinite(m)):
-        raise InputError(f"{what}: expected finite numbers, got NaN or infinity")
-    if not np.allclose(m[3], [0.0, 0.0, 0.0, 1.0], atol=1e-9, rtol=0.0):
-        raise InputError(f"{what}: last row must be [0, 0, 0, 1], got {m[3].tolist()}")
-    R = m[:3, :3]
-    error = float(np.max(np.abs(R.T @ R - np.eye(3))))
-    if error > 1e-6 or np.linalg.det(R) <= 0:
-        raise InputError(
-            f"{what}: the 3x3 block must be a rotation (orthonormal, det +1), got "
-            f"|R^T R - I| = {error:.3g}, det = {np.linalg.det(R):.6g}"
-        )
-    if error > 1e-12:
-        U, _, Vt = np.linalg.svd(R)
-        m[:3, :3] = U @ Vt
-    m[3] = (0.0, 0.0, 0.0, 1.0)
-    return m
 
 
 # --------------------------------------------------------------------------------------------
@@ -682,7 +649,7 @@ def solve_joint_origins(
     for key, T in updates.items():
         if not isinstance(key, str):
             raise InputError(f"{urdf.source}: update keys must be link names, got {key!r}")
-        T_body_sensor = check_rigid(T, f"{urdf.source}: T_{body_link}_{key}")
+        T_body_sensor = as_rigid(T, f"{urdf.source}: T_{body_link}_{key}")
         T_body_sensor.setflags(write=False)
         sensor, joint = _resolve_target(urdf, key, joint_for)
         if sensor == body_link:
@@ -908,7 +875,7 @@ def plan_sensor_links(
             continue
         if frame not in urdf.links and frame not in urdf.joints:
             if add_missing:
-                add[frame] = check_rigid(T, f"{urdf.source}: T_{body_link}_{frame}")
+                add[frame] = as_rigid(T, f"{urdf.source}: T_{body_link}_{frame}")
             else:
                 skipped.append(frame)
             continue
@@ -967,7 +934,7 @@ def add_fixed_links(text: str, source: str, links: Mapping[str, Any], body_link:
         while joint in taken:
             joint, k = f"{name}_joint_{k}", k + 1
         taken.add(joint)
-        xyz, rpy = origin_from_matrix(check_rigid(T, f"{source}: T_{body_link}_{name}"))
+        xyz, rpy = origin_from_matrix(as_rigid(T, f"{source}: T_{body_link}_{name}"))
         pieces.append(
             f'{indent}<link name="{name}"/>\n'
             f'{indent}<joint name="{joint}" type="fixed">\n'
@@ -1037,7 +1004,7 @@ def read_original_calibration_yaml(
                     f"{source}: transform[{i}][{j}]: expected a finite number, got "
                     f"{type_name(value)} {value!r}"
                 )
-    T = check_rigid(rows, f"{source}: transform")
+    T = as_rigid(rows, f"{source}: transform")
     return OriginalCalibration(frames[0], frames[1], T)
 
 

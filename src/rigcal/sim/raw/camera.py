@@ -42,7 +42,7 @@ from rigcal.sim.raw.scene import (
     texture_tile,
     trace_planes,
 )
-from rigcal.sim.raw.scene import _check_rigid  # noqa: PLC2701 - shared validator
+from rigcal.geometry.se3 import as_rigid
 
 _DIST_NAMES = ("k1", "k2", "p1", "p2", "k3")
 _BAND_SAMPLES = 1 << 17  # rays per block while rendering (keeps temporaries in cache)
@@ -383,7 +383,7 @@ def render(
     seen by ``camera`` at ``T_world_camera`` (optical frame -> world). Draws H * W normals from
     ``rng`` (image noise, ``noise_sigma`` grey levels)."""
     _check_render_args(scene, rng, supersample, noise_sigma)
-    T = _check_rigid(T_world_camera, f"render '{sensor}': T_world_camera")
+    T = as_rigid(T_world_camera, f"render '{sensor}': T_world_camera")
     grey = _render_grey(camera, T, scene, supersample)
     img = _finish(grey, rng, noise_sigma, bgr)
     return ImageFrame(sensor=sensor, t_ns=t_ns, image=img, frame_id=frame_id or sensor)
@@ -409,7 +409,7 @@ def render_stereo(
     if not isinstance(stereo, StereoCamera):
         raise InputError(f"render_stereo: expected a StereoCamera, got {type(stereo).__name__}")
     _check_render_args(scene, rng, supersample, noise_sigma)
-    T_left = _check_rigid(T_world_left, f"render_stereo '{sensor}': T_world_left")
+    T_left = as_rigid(T_world_left, f"render_stereo '{sensor}': T_world_left")
     T_right = T_left @ stereo.T_left_right
     grey_l = _render_grey(stereo.camera, T_left, scene, supersample)
     grey_r = _render_grey(stereo.camera, T_right, scene, supersample)

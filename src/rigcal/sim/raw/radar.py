@@ -30,7 +30,8 @@ import numpy as np
 
 from rigcal.errors import InputError
 from rigcal.recording import RadarFrame
-from rigcal.sim.raw.scene import Scene, _check_rigid, check_sim_call
+from rigcal.geometry.se3 import as_rigid
+from rigcal.sim.raw.scene import Scene, check_sim_call
 
 
 def _interval(value, what: str) -> tuple[float, float]:
@@ -133,7 +134,7 @@ def automotive_3d(**overrides) -> RadarModel:
 
 def reflector_visible(model: RadarModel, T_world_radar: np.ndarray, scene: Scene) -> bool:
     """Whether ``model`` at ``T_world_radar`` detects the scene's reflector (geometry only)."""
-    T = _check_rigid(T_world_radar, "reflector_visible: T_world_radar")
+    T = as_rigid(T_world_radar, "reflector_visible: T_world_radar")
     return _reflector_geometry(model, T, scene)[3]
 
 

@@ -35,7 +35,8 @@ from rigcal.recording import Frame
 from rigcal.sim.raw.camera import PinholeRadtanCamera, StereoCamera, render, render_stereo
 from rigcal.sim.raw.lidar import LidarModel, hdl64e, scan, vlp16
 from rigcal.sim.raw.radar import RadarModel, automotive_2d, detections
-from rigcal.sim.raw.scene import Scene, _check_rigid
+from rigcal.geometry.se3 import as_rigid
+from rigcal.sim.raw.scene import Scene
 from rigcal.sim.rig import (
     RIG_FRAME,
     SimSensor,
@@ -72,7 +73,7 @@ class RawSensor:
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name.strip():
             raise InputError(f"raw sensor name must be a non-empty string, got {self.name!r}")
-        T = _check_rigid(self.T_rig_sensor, f"raw sensor '{self.name}'.T_rig_sensor")
+        T = as_rigid(self.T_rig_sensor, f"raw sensor '{self.name}'.T_rig_sensor")
         object.__setattr__(self, "T_rig_sensor", T)
         kind = self.kind  # validates the model
         rate = DEFAULT_RATE_HZ[kind] if self.rate_hz is None else self.rate_hz
@@ -260,7 +261,7 @@ def make_timeline(
     if P.ndim != 3 or P.shape[1:] != (4, 4) or P.shape[0] < 1:
         raise InputError(f"placements must have shape (K, 4, 4) with K >= 1, got {P.shape}")
     for k in range(P.shape[0]):
-        _check_rigid(P[k], f"placements[{k}]")
+        as_rigid(P[k], f"placements[{k}]")
     for name, v in (("dwell_s", dwell_s), ("transition_s", transition_s), ("jitter_m", jitter_m),
                     ("jitter_deg", jitter_deg)):
         if not (math.isfinite(v) and v >= 0):

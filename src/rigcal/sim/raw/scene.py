@@ -53,7 +53,6 @@ _TEXTURE_TILE_PX = 1024
 _EPS_T = 1e-6
 
 
-_check_rigid = as_rigid
 
 
 def _finite_positive(value: float, what: str, allow_zero: bool = False) -> float:
@@ -161,7 +160,7 @@ class Scene:
     texture_seed: int = 0
 
     def __post_init__(self) -> None:
-        T = _check_rigid(self.T_world_board, "scene.T_world_board")
+        T = as_rigid(self.T_world_board, "scene.T_world_board")
         object.__setattr__(self, "T_world_board", T)
         if not isinstance(self.board, BoardGeometry):
             raise InputError(
@@ -423,4 +422,4 @@ def check_sim_call(where: str, model, model_type: type, scene, rng, T_world_sens
         raise InputError(
             f"{where}: rng must be a numpy.random.Generator, got {type(rng).__name__}"
         )
-    return _check_rigid(T_world_sensor, f"{where}: {what}")
+    return as_rigid(T_world_sensor, f"{where}: {what}")

@@ -187,6 +187,7 @@ def _context(data: Mapping[str, Any]) -> dict[str, Any]:
         "mocap": mocap,
         "holds": holds,
         "overlays": (mocap or {}).get("overlays", []),
+        "raw_images": (data.get("raw") or {}).get("images", []),
         "figures": figures,
         "figures_json": figures_json,
         "plotly_js": js,

@@ -219,8 +219,8 @@ def _axis_name(v: Iterable[float]) -> str:
     return ("x", "y", "z")[i] if abs(v[i]) > 0.9 else "(" + ", ".join(f"{c:+.2f}" for c in v) + ")"
 
 
-def sensor_coverage(det: SensorDetections, result: CalibrationResult, board_points: np.ndarray,
-                    boards: list[int]) -> dict[str, Any]:
+def sensor_coverage(det: SensorDetections | Any, result: CalibrationResult, board_points: np.ndarray,
+                    boards: list[int], item: str = "board") -> dict[str, Any]:
     """Where the boards were in one sensor's view, its least determined directions and a hint
     where the next board helps most.
 
@@ -294,7 +294,7 @@ def sensor_coverage(det: SensorDetections, result: CalibrationResult, board_poin
     p_ref = transform_points(T, p_sensor[None])[0]
     gain = 1.0 - s / base if base > 0 else 0.0
     w = out["weakest"]
-    text = (f"next board for {det.name}: azimuth {a:+.0f} deg, "
+    text = (f"next {item} for {det.name}: azimuth {a:+.0f} deg, "
             + (f"elevation {e:+.0f} deg, " if det.kind is not SensorKind.RADAR else "")
             + f"range {r0:.1f} m (reference frame x {p_ref[0]:.2f}, y {p_ref[1]:.2f}, z {p_ref[2]:.2f} m)"
             + f" - shrinks the pose variance by {100 * gain:.0f} %; least determined now: rotation about "
@@ -416,6 +416,7 @@ def mocap_report(run: Any, overlays: Mapping[str, bytes] | None = None) -> dict[
         "templates": placed,
         "measured": {n: _r(np.concatenate(v), 3) for n, v in lidar_pts.items() if v},
     }
+    data["coverage"] = mocap_coverage(run)
     data["mocap"] = {
         "measurements": measurements,
         "holds": hold_rows,
@@ -423,6 +424,34 @@ def mocap_report(run: Any, overlays: Mapping[str, bytes] | None = None) -> dict[
                      for n, b in sorted((overlays or {}).items())],
     }
     return data
+
+
+def mocap_coverage(run: Any) -> dict[str, Any]:
+    """:func:`sensor_coverage` of a motion-capture run: where each hold put the target in each
+    sensor's view (the MCS target pose seen through the final calibration), the sensor's least
+    determined directions and where one more hold helps most (the target taken as a board-sized
+    set of four keypoints)."""
+    from types import SimpleNamespace
+
+    final = run.final
+    out = {}
+    for name, est in run.result.sensors.items():
+        T_sensor_robot = invert(final[name])
+        centres, holds, seen = [], [], set()
+        for obs in run.observations:
+            key = obs.hold or f"{obs.target}@{obs.t_ns}"
+            if obs.sensor != name or key in seen:
+                continue
+            seen.add(key)
+            holds.append(key)
+            centres.append(transform_points(T_sensor_robot, np.asarray(obs.T_robot_target, dtype=float)[None, :3, 3])[0])
+        sensor = SimpleNamespace(name=name, kind=est.kind, max_elevation_rad=0.0)
+        cov = sensor_coverage(sensor, run.result, np.asarray(centres).reshape(-1, 3), list(range(len(centres))),
+                              item="target hold")
+        cov["labels"] = holds
+        cov["item"] = "hold"
+        out[name] = cov
+    return out
 
 
 def _template_points(target: Any, limit: int = 300) -> np.ndarray | None:
@@ -459,6 +488,7 @@ __all__ = [
     "absolute_report",
     "calibration_report",
     "coverage_data",
+    "mocap_coverage",
     "mocap_report",
     "radar_arcs",
     "radar_wedge",

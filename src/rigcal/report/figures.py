@@ -213,22 +213,24 @@ def coverage_figures(data: Mapping[str, Any]) -> list[dict[str, Any]]:
             continue
         radar2d = cov["kind"] == "radar"
         y = cov["range_m"] if radar2d else cov["elevation_deg"]
-        traces = [{"type": "scatter", "mode": "markers+text", "name": "boards", "x": cov["azimuth_deg"], "y": y,
-                   "text": [str(b) for b in cov["boards"]], "textposition": "top center",
+        item = cov.get("item", "board")
+        labels = cov.get("labels") or [str(b) for b in cov["boards"]]
+        traces = [{"type": "scatter", "mode": "markers+text", "name": f"{item}s", "x": cov["azimuth_deg"], "y": y,
+                   "text": labels, "textposition": "top center",
                    "textfont": {"size": 9}, "marker": {"size": 9, "color": _colour(i)},
-                   "hovertemplate": "board %{text}: azimuth %{x:.1f} deg, "
+                   "hovertemplate": f"{item} %{{text}}: azimuth %{{x:.1f}} deg, "
                    + ("range %{y:.2f} m" if radar2d else "elevation %{y:.1f} deg") + "<extra></extra>"}]
         hint = cov.get("hint")
         if hint:
-            traces.append({"type": "scatter", "mode": "markers", "name": "suggested next board",
+            traces.append({"type": "scatter", "mode": "markers", "name": f"suggested next {item}",
                            "x": [hint["azimuth_deg"]], "y": [hint["range_m"] if radar2d else hint["elevation_deg"]],
                            "marker": {"symbol": "star", "size": 16, "color": "#d62728"},
-                           "hovertemplate": "suggested next board<extra></extra>"})
+                           "hovertemplate": f"suggested next {item}<extra></extra>"})
         shapes = []
         if radar2d:
             pass
         figs.append({"id": f"fig-coverage-{name}", "data": traces, "layout": _layout(
-            f"{name}: boards in its view", height=320, shapes=shapes, showlegend=True,
+            f"{name}: {item}s in its view", height=320, shapes=shapes, showlegend=True,
             legend={"orientation": "h", "y": -0.25},
             xaxis={"title": {"text": "azimuth [deg] (left is +)"}, "autorange": "reversed", "zeroline": True},
             yaxis={"title": {"text": "range [m]" if radar2d else "elevation [deg]"}, "zeroline": True})})

@@ -8,7 +8,6 @@ layout)``); the trace and layout keys are plotly.js's documented schema.
 
 from __future__ import annotations
 
-import math
 from typing import Any, Mapping
 
 #: sensor colours (colour-blind safe), cycled
@@ -185,8 +184,7 @@ def residual_figures(data: Mapping[str, Any]) -> list[dict[str, Any]]:
             boards = sorted(int(k) for k in errs)
             if not boards:
                 continue
-            vals = [errs[k] if k in errs else errs.get(str(k)) for k in boards]
-            vals = [errs.get(k, errs.get(str(k))) for k in boards]
+            vals = [errs.get(k, errs.get(str(k))) for k in boards]  # int keys, or str after JSON
             traces.append({"type": "bar", "name": pair, "x": boards,
                            "y": [None if v is None else round(v * 1000, 3) for v in vals],
                            "marker": {"color": _colour(i)},
@@ -226,11 +224,8 @@ def coverage_figures(data: Mapping[str, Any]) -> list[dict[str, Any]]:
                            "x": [hint["azimuth_deg"]], "y": [hint["range_m"] if radar2d else hint["elevation_deg"]],
                            "marker": {"symbol": "star", "size": 16, "color": "#d62728"},
                            "hovertemplate": f"suggested next {item}<extra></extra>"})
-        shapes = []
-        if radar2d:
-            pass
         figs.append({"id": f"fig-coverage-{name}", "data": traces, "layout": _layout(
-            f"{name}: {item}s in its view", height=320, shapes=shapes, showlegend=True,
+            f"{name}: {item}s in its view", height=320, showlegend=True,
             legend={"orientation": "h", "y": -0.25},
             xaxis={"title": {"text": "azimuth [deg] (left is +)"}, "autorange": "reversed", "zeroline": True},
             yaxis={"title": {"text": "range [m]" if radar2d else "elevation [deg]"}, "zeroline": True})})
@@ -287,10 +282,6 @@ def all_figures(data: Mapping[str, Any]) -> list[dict[str, Any]]:
     figs += mocap_figures(data)
     figs += coverage_figures(data)
     return figs
-
-
-def finite(x: Any) -> bool:
-    return isinstance(x, (int, float)) and math.isfinite(x)
 
 
 __all__ = ["all_figures", "coverage_figures", "mocap_figures", "residual_figures", "scene_figure"]

@@ -16,7 +16,7 @@ from rigcal.dataset import SensorKind
 from rigcal.errors import InputError
 from rigcal.geometry.se3 import invert, transform_points
 from rigcal.io.results.calibration import write_results
-from rigcal.io.results.report import read_report_data, report_json_text, write_report
+from rigcal.io.results.report import report_json_text, write_report
 from rigcal.problem.calibrate import CalibrationOptions, calibrate
 from rigcal.problem.result import STD_KEYS, CalibrationResult, SensorEstimate
 from rigcal.report.data import calibration_report, radar_arcs, sensor_coverage, weakest_directions
@@ -209,45 +209,6 @@ def test_flagged_result_says_so_first(sim):
     head = html.split('id="poses"', 1)[0]
     assert "FLAGGED: the result contradicts its own noise model (pairs)" in head
     assert 'class="verdict flagged"' in head
-
-
-# --------------------------------------------------------------------------------------------
-# reading a result folder back
-
-
-def test_read_back_from_report_json_and_from_calibration_yaml(fitted, sim, tmp_path):
-    write_results(fitted, tmp_path / "a")
-    write_report(calibration_report(fitted, sim.dataset), tmp_path / "a")
-    data = read_report_data(tmp_path / "a")
-    assert data["kind"] == "calibrate" and data["scene"]["sensors"]
-    assert render_report(data) == (tmp_path / "a" / "report.html").read_text()
-    # a folder from before reports: the result file alone
-    write_results(fitted, tmp_path / "b")
-    data = read_report_data(tmp_path / "b")
-    assert "scene" not in data and "not stored" in data["note"]
-    html = render_report(data)
-    assert _cells(html, "poses")["camera1"]["x_m"] == f"{fitted.sensors['camera1'].xyz_m[0]:.4f}"
-
-
-@pytest.mark.parametrize(("setup", "message"), [
-    (lambda d: None, r"not a rigcal result folder: expected report.json"),
-    (lambda d: (d / "report.json").write_text("{nope"), r"report.json: not valid JSON"),
-    (lambda d: (d / "report.json").write_text('{"format": "other"}'), r"report.json: format: expected 'rigcal-report'"),
-    (lambda d: (d / "report.json").write_text('{"format": "rigcal-report", "version": 9}'), r"version: expected 1"),
-    (lambda d: (d / "report.json").write_text('{"format": "rigcal-report", "version": 1, "kind": "x"}'),
-     r"kind: expected one of calibrate, mocap, absolute"),
-    (lambda d: (d / "calibration.yaml").write_text("source: a\ntarget: b\n"), r"calibration.yaml: expected rigcal's"),
-])
-def test_bad_result_folders_are_named(tmp_path, setup, message):
-    setup(tmp_path)
-    with pytest.raises(InputError, match=message):
-        read_report_data(tmp_path)
-
-
-def test_not_a_folder(tmp_path):
-    (tmp_path / "f.txt").write_text("x")
-    with pytest.raises(InputError, match=r"f.txt: not a folder"):
-        read_report_data(tmp_path / "f.txt")
 
 
 def test_malformed_report_data_is_an_input_error():

@@ -107,7 +107,7 @@ def test_outlier_boards_are_marked_in_the_scene(sim):
     cam = {s["name"]: s for s in calibration_report(result, ds)["scene"]["sensors"]}["camera1"]
     assert cam["status"][cam["boards"].index(3)] == "outlier"
     assert cam["status"].count("outlier") == 1
-    fig = all_figures(calibration_report(result, ds))[0]
+    fig = next(f for f in all_figures(calibration_report(result, ds)) if f["id"] == "fig-scene")
     outlier_traces = [t for t in fig["data"] if t.get("meta", {}).get("status") == "outlier"]
     assert [t["meta"]["sensor"] for t in outlier_traces] == ["camera1"]
     assert len(outlier_traces[0]["x"]) == 4  # the board's four circle centres

@@ -207,3 +207,17 @@ def test_mocap_report_in_a_browser(browser, tmp_path):
     assert imgs.count() == len(data["mocap"]["overlays"]) >= 1
     assert all(page.evaluate("img => img.naturalWidth > 0", img.element_handle()) for img in imgs.all())
     page.close()
+
+
+@pytest.mark.parametrize(("body", "needle"), [
+    ('<img src="http://127.0.0.1:9/x.png">', "request: http://127.0.0.1:9/x.png"),
+    ("<script>console.error('boom')</script>", "console error: boom"),
+    ("<script>null.x</script>", "page error"),
+])
+def test_the_harness_fails_on_requests_and_errors(browser, tmp_path, body, needle):
+    """The checks above can fail: a foreign request, a console error or a script error is caught."""
+    page = tmp_path / "p.html"
+    page.write_text(f"<!DOCTYPE html><html><body>{body}<script>document.body.dataset.rendered = 'true'"
+                    "</script></body></html>")
+    with pytest.raises(AssertionError, match=re.escape(needle)):
+        open_report(browser, page)

@@ -273,15 +273,12 @@ def mocap_figures(data: Mapping[str, Any]) -> list[dict[str, Any]]:
 
 
 def all_figures(data: Mapping[str, Any]) -> list[dict[str, Any]]:
-    """Every figure of the page, in page order (each ``{"id", "data", "layout"}``)."""
-    figs = []
+    """Every figure of the page (each ``{"id", "data", "layout"}``), in the order they are drawn:
+    the 3D scene last - creating its WebGL context blocks the page for a while (about 2 s with
+    a software renderer), so the 2D figures are drawn before it."""
+    figs = residual_figures(data) + mocap_figures(data) + coverage_figures(data)
     scene = scene_figure(data)
-    if scene is not None:
-        figs.append(scene)
-    figs += residual_figures(data)
-    figs += mocap_figures(data)
-    figs += coverage_figures(data)
-    return figs
+    return figs + ([scene] if scene is not None else [])
 
 
 __all__ = ["all_figures", "coverage_figures", "mocap_figures", "residual_figures", "scene_figure"]

@@ -225,3 +225,20 @@ def test_pose_rows_mark_bounded_directions():
     cells = dict(rows[0]["cells"])
     assert cells["std_z_m"] == "bnd" and cells["std_roll_deg"] == "bnd"
     assert cells["std_x_m"] == "1.0" and cells["x_m"] == "1.0000"
+
+
+def test_hand_edited_report_data_cannot_break_out_of_the_page(fitted, sim):
+    data = json.loads(report_json_text(calibration_report(fitted, sim.dataset)))
+    evil = "</script><script>alert(1)</script><!--"
+    data["result"]["warnings"] = [evil]
+    data["scene"]["sensors"][0]["hover"] = [evil] * len(data["scene"]["sensors"][0]["hover"])
+    html = render_report(data)
+    assert evil not in html
+    assert "&lt;/script&gt;&lt;script&gt;alert(1)" in html  # the warning, escaped
+    figures = html.split('id="figure-data">', 1)[1].split("</script>", 1)[0]
+    assert "<" not in figures
+    assert evil in json.dumps(json.loads(figures))  # the same text once parsed
+    # a check without its detail: one error naming the file, no traceback
+    data["result"]["verdict"]["checks"] = [{"name": "pairs", "status": "pass"}]
+    with pytest.raises(InputError, match=r"r.json: malformed report data \(UndefinedError"):
+        render_report(data, "r.json")

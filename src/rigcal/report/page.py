@@ -160,7 +160,8 @@ def _context(data: Mapping[str, Any]) -> dict[str, Any]:
     for h in (mocap or {}).get("holds", []):
         scale, unit = (1000.0, "mm") if h["unit"] == "m" else (1.0, h["unit"])
         holds.append({**h, "text": f"{h['rms_final'] * scale:.3f} {unit}"})
-    figures_json = json.dumps(figures, separators=(",", ":"), allow_nan=False).replace("</", "<\\/")
+    # inside <script>: no "<" at all (no "</script>", no "<!--"), JSON's own escape keeps the text
+    figures_json = json.dumps(figures, separators=(",", ":"), allow_nan=False).replace("<", "\\u003c")
     js, js_version = plotly_js()
     return {
         "title": data.get("title", "rigcal report"),
@@ -228,12 +229,13 @@ def check_report_data(data: Any, source: str) -> Mapping[str, Any]:
 def render_report(data: Mapping[str, Any], source: str = "report data") -> str:
     """The HTML text of ``report.html`` for the report ``data``. Malformed data (e.g. a
     hand-edited ``report.json``) raises InputError naming ``source``."""
+    import jinja2
+
     check_report_data(data, source)
     try:
-        ctx = _context(data)
-    except (KeyError, TypeError, ValueError, IndexError, AttributeError) as exc:
+        return _template().render(**_context(data))
+    except (KeyError, TypeError, ValueError, IndexError, AttributeError, jinja2.TemplateError) as exc:
         raise InputError(f"{source}: malformed report data ({type(exc).__name__}: {exc})") from None
-    return _template().render(**ctx)
 
 
 __all__ = ["check_report_data", "plotly_js", "pose_rows", "render_report"]

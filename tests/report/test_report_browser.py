@@ -144,6 +144,7 @@ def calibrate_folder(tmp_path_factory):
     return tmp / "out"
 
 
+@pytest.mark.slow  # 8-15 s on the shared 2-core machine: calibrating, launching chromium, a page load
 def test_calibrate_report_in_a_browser(browser, calibrate_folder):
     page, seconds = open_report(browser, calibrate_folder / "report.html")
     cal = check_common(page, calibrate_folder)

@@ -50,12 +50,15 @@ class DemoReport:
 
 def _calibrate_all(dataset, truth, out: Path, modes=("mcpe", "fcpe", "pse")) -> tuple[ModeOutcome, ...]:
     from rigcal.io.results.calibration import write_results
+    from rigcal.io.results.report import write_report
+    from rigcal.report.data import calibration_report
     from rigcal.report.plot import plot_calibration
 
     outcomes = []
     for mode in modes:
         result = calibrate(dataset, CalibrationOptions(mode=mode, cross_validation_folds=5))
         write_results(result, out / mode)
+        write_report(calibration_report(result, dataset), out / mode)
         plot_calibration(dataset, result, out / mode / "calibration.png")
         outcomes.append(ModeOutcome(mode, result, errors_against_truth(result, truth)))
     return tuple(outcomes)
@@ -482,6 +485,10 @@ def absolute_demo(
     )
     results = out / "absolute"
     write_absolute(result, results)
+    from rigcal.io.results.report import write_report
+    from rigcal.report.data import absolute_report
+
+    write_report(absolute_report(result, load_manifest(manifest)), results)
     cal = read_calibration_transforms(results / "absolute.yaml")
     urdf = write_urdf(scene / "vehicle.urdf", out / "vehicle_calibrated.urdf", dict(cal.transforms),
                       cal.parent_frame, kinds=cal.kinds, missing="skip")

@@ -22,9 +22,9 @@ from rigcal.sim.rig import make_rig_placements, prius_like_rig, simulate
 
 #: what `rigcal --help` and every `rigcal COMMAND --help` must not import
 HEAVY = ("numpy", "scipy", "cv2", "matplotlib", "rosbags", "rich", "yaml", "rigcal.problem", "rigcal.study",
-         "rigcal.detect", "rigcal.mocap", "rigcal.io")
+         "rigcal.detect", "rigcal.mocap", "rigcal.io", "jinja2", "plotly", "rigcal.report")
 
-COMMANDS = ("calibrate", "detect", "absolute", "mocap", "study", "urdf", "export", "demo")
+COMMANDS = ("calibrate", "detect", "absolute", "mocap", "report", "study", "urdf", "export", "demo")
 
 
 def _imported_modules(*argv: str) -> set[str]:
@@ -66,6 +66,7 @@ MINIMAL = {
     "detect": ["rec.bag", "--rig", "rig.yaml", "--out", "o"],
     "absolute": ["rig.yaml", "--external", "e", "--scan", "s.pcd", "--labels", "l.yaml", "--out", "o"],
     "mocap": ["mocap.yaml", "--out", "o"],
+    "report": ["results"],
     "urdf": ["in.urdf", "cal.yaml", "--out", "out.urdf"],
     "export": ["cal.yaml", "--format", "yaml"],
     "demo": ["--detections-only"],

@@ -27,6 +27,15 @@ def test_mocap_cli_writes_results_diagnostics_and_overlays(tmp_path, capsys):
     pngs = list((out / "overlays").glob("*.png"))
     assert pngs and all(p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" for p in pngs)
     assert "measurements per sensor" in captured.err and "target_moving" in captured.err
+    # report.html: the verdict, every kept measurement's residual, the overlays embedded
+    report = json.loads((out / "report.json").read_text())
+    assert report["kind"] == "mocap"
+    kept = [r for r in (out / "diagnostics.csv").read_text().splitlines()[1:] if ",kept," in r]
+    assert len(report["mocap"]["measurements"]) == len(kept)
+    assert len(report["mocap"]["overlays"]) == len(pngs)
+    html = (out / "report.html").read_text()
+    shown = html.split('id="overlays"', 1)[1].split("</div>", 1)[0]
+    assert shown.count('src="data:image/png;base64,') == len(pngs) and 'id="holds"' in html
     # stderr (the summary, --json) is not a terminal: progress lines, tables within 80 columns
     assert re.search(r"^extracting: (\d+)/\1 frames \(100%\), [0-9.]+ s$", captured.err, re.M), captured.err
     assert all(len(line) <= 80 for line in captured.err.splitlines()) and "…" not in captured.err

@@ -21,7 +21,7 @@ from rigcal.sim.rig import make_rig_placements, prius_like_rig, simulate
 pytestmark = pytest.mark.slow  # long: run in CI (CI=1 make test) and make test-all
 
 SET = {".rigcal-output", "calibration.yaml", "calibration.launch", "lidar1.yaml", "camera1.yaml",
-       "radar1.yaml"}
+       "radar1.yaml", "report.json", "report.html"}
 
 
 @pytest.fixture(scope="module")

@@ -17,7 +17,7 @@ def add_parser(sub) -> None:
         "labels (circle fits), single wheel-centre labels or markers in the external scan, plus "
         "the ground plane, give the body frame (origin below the rear axle centre, X forward, "
         "Y left, Z up); then T_body_sensor = T_body_external T_external_sensor. Writes "
-        "absolute.yaml/.json and launch files.",
+        "absolute.yaml/.json, launch files and report.html.",
         epilog="example:\n  rigcal absolute rig.yaml --external leica --scan car_scan.pcd "
         "--labels wheels.yaml --out absolute/",
     )
@@ -60,6 +60,8 @@ def run(args, console) -> int:
     from rigcal.errors import InputError
     from rigcal.io._text import read_text
     from rigcal.io.results.absolute import absolute_to_json_text, write_absolute
+    from rigcal.io.results.report import write_report
+    from rigcal.report.data import absolute_report
     from rigcal.io.atomic import staged_folder
     from rigcal.io.results.calibration_files import read_initial_poses
     from rigcal.problem.calibrate import CalibrationOptions
@@ -92,6 +94,7 @@ def run(args, console) -> int:
         return not_written(console, "the relative calibration")
     with staged_folder(args.out) as stage:
         write_absolute(result, stage)
+        write_report(absolute_report(result, dataset), stage)
     if args.json:
         sys.stdout.write(absolute_to_json_text(result) + "\n")
     b = result.body
@@ -107,5 +110,5 @@ def run(args, console) -> int:
         console.print(f"ground check {name}: normal {math.degrees(g.angle_rad):.3f} deg from body Z")
     for w in result.warnings:
         console.print(f"[yellow]warning:[/yellow] {w}")
-    console.print(f"written to {args.out}/ (absolute.yaml, absolute.json, launch files)")
+    console.print(f"written to {args.out}/ (absolute.yaml, absolute.json, launch files, report.html)")
     return EXIT_FLAGGED if result.relative.flagged else 0

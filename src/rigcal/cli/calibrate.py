@@ -12,6 +12,9 @@ EPILOG = """examples:
   rigcal calibrate rig.yaml --mode pse --reference lidar1 --out results/ --json
   rigcal calibrate --lidar lidar.csv --camera camera.csv --radar radar.csv --mode fcpe --out results/
 
+writes calibration.yaml, <sensor>.yaml, calibration.launch and report.html (open it in a
+browser: verdict, poses, residuals, 3D detections, coverage; works offline)
+
 exit codes: 0 consistent result written; 1 error; 2 usage; 3 the result contradicts its own
 noise model (nothing written unless --force)
 """
@@ -75,15 +78,20 @@ def run(args, console) -> int:
     from rigcal.io.dataset.ignore import read_ignore_file
     from rigcal.io.dataset.manifest import dataset_from_files, load_manifest
     from rigcal.io.results.calibration import result_to_json_text, write_results
+    from rigcal.io.results.report import write_report
     from rigcal.problem.calibrate import CalibrationOptions, calibrate
+    from rigcal.report.data import calibration_report
+    from rigcal.report.raw import with_raw
 
     files = args.lidar or args.camera or args.radar or args.radar3d
     if args.manifest and files:
         raise InputError("give either a manifest or --lidar/--camera/--radar files, not both")
+    detection = None
     if args.rig:
         if not args.manifest or files:
             raise InputError("--rig needs a recording as the positional argument (and no --lidar/--camera/--radar)")
-        dataset = detect_recording(args.manifest, args.rig, console).dataset
+        detection = detect_recording(args.manifest, args.rig, console)
+        dataset = detection.dataset
     elif args.manifest:
         dataset = load_manifest(args.manifest)
     elif files:
@@ -107,8 +115,12 @@ def run(args, console) -> int:
     if result.flagged and not args.force:
         summary(result, console)
         return not_written(console)
+    report = calibration_report(result, dataset)
+    if detection is not None:  # raw data: the lidar scans on the camera images
+        report = with_raw(report, raw_images(args.manifest, args.rig, detection, result))
     with staged_folder(args.out) as stage:
         write_results(result, stage)
+        write_report(report, stage)
         if args.plot:
             from rigcal.report.plot import plot_calibration
 
@@ -118,3 +130,22 @@ def run(args, console) -> int:
     summary(result, console)
     console.print(f"results written to {args.out}/" + (" (FLAGGED, written with --force)" if result.flagged else ""))
     return EXIT_FLAGGED if result.flagged else 0
+
+
+def raw_images(recording_path: str, rig_path: str, detection, result) -> list:
+    """The report's lidar-on-camera images from the recording (none, with a warning, when the
+    recording cannot be read again)."""
+    import logging
+
+    from rigcal.errors import RigcalError
+    from rigcal.io.config.rig_config import load_rig_config
+    from rigcal.io.recordings.open_any import open_any
+    from rigcal.report.raw import raw_overlays
+
+    try:
+        rig = load_rig_config(rig_path)
+        with open_any(recording_path) as rec:
+            return raw_overlays(rec, rig, detection.placements, detection.dataset, result)
+    except RigcalError as exc:
+        logging.getLogger(__name__).warning("report: no lidar-on-image overlays (%s)", exc)
+        return []

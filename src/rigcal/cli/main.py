@@ -1,7 +1,7 @@
 """``rigcal`` command line: parse -> run(args) -> int. Known errors become one line, exit 1.
 
 Each subcommand is a module of :mod:`rigcal.cli` (``calibrate``, ``detect``, ``absolute``,
-``mocap``, ``study``, ``urdf``, ``export``, ``demo``) with ``add_parser(subparsers)`` and
+``mocap``, ``report``, ``study``, ``urdf``, ``export``, ``demo``) with ``add_parser(subparsers)`` and
 ``run(args, console)``; a module imports numpy, scipy, OpenCV, rosbags, matplotlib and rich
 only inside ``run``, so ``rigcal --help`` and ``rigcal COMMAND --help`` start fast.
 
@@ -21,7 +21,7 @@ import sys
 from typing import Sequence
 
 from rigcal import __version__
-from rigcal.cli import absolute, calibrate, demo, detect, export, mocap, study, urdf
+from rigcal.cli import absolute, calibrate, demo, detect, export, mocap, report, study, urdf
 from rigcal.cli.codes import (
     EXIT_CODES_HELP,
     EXIT_FLAGGED,
@@ -35,7 +35,7 @@ from rigcal.errors import RigcalError
 __all__ = ["EXIT_FLAGGED", "EXIT_INTERRUPTED", "EXIT_PARTIAL", "EXIT_TERMINATED", "Terminated", "entry", "run"]
 
 #: the subcommands, in the order ``rigcal --help`` lists them
-COMMANDS = (calibrate, detect, absolute, mocap, study, urdf, export, demo)
+COMMANDS = (calibrate, detect, absolute, mocap, report, study, urdf, export, demo)
 
 EPILOG = f"""Run `rigcal COMMAND --help` for a command's options; -v/--verbose may come before or
 after COMMAND.

@@ -875,11 +875,13 @@ def summary_rows(run: MocapRun) -> list[tuple]:
 
 
 def write_mocap_outputs(run: MocapRun, out_dir: str | os.PathLike[str],
-                        max_overlays: int | None = None) -> list[Path]:
+                        max_overlays: int | None = None, report: bool = True) -> list[Path]:
     """Write the result files (:func:`rigcal.io.results.calibration.write_results`), ``extrinsics.json``
     (``robot_frame`` <- each sensor's ``frame_id``, the original tool's layout),
     ``diagnostics.csv`` and up to ``max_overlays`` (default: the configuration's
-    ``overlays_per_sensor``) overlay PNGs per sensor in ``overlays/``; every file atomically.
+    ``overlays_per_sensor``) overlay PNGs per sensor in ``overlays/`` and (``report``)
+    ``report.json`` + ``report.html`` (:mod:`rigcal.report`, the overlays embedded); every
+    file atomically.
     A sensor that is not calibrated has no transform in these files (``calibration.yaml``
     lists it under ``not_calibrated`` with the reason) but its rows in ``diagnostics.csv``.
     Returns the written paths."""
@@ -900,7 +902,14 @@ def write_mocap_outputs(run: MocapRun, out_dir: str | os.PathLike[str],
     )
     paths.append(write_extrinsics_json(out / EXTRINSICS_NAME, ext))
     paths.append(atomic_write_text(out / DIAGNOSTICS_NAME, diagnostics_csv_text(run)))
+    overlays: list[Path] = []
     if limit > 0:
-        paths += write_overlays([o for o in run.overlays if o.sensor in final], run.initial, final,
-                                out / OVERLAY_DIR, limit)
+        overlays = write_overlays([o for o in run.overlays if o.sensor in final], run.initial, final,
+                                  out / OVERLAY_DIR, limit)
+        paths += overlays
+    if report:
+        from rigcal.io.results.report import write_report
+        from rigcal.report.data import mocap_report
+
+        paths += write_report(mocap_report(run, {p.name: p.read_bytes() for p in overlays}), out)
     return paths

@@ -23,18 +23,23 @@ from pathlib import Path
 MANIFEST = Path(__file__).resolve().parents[1] / "examples" / "prius" / "rig.yaml"
 ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
         "--disable-sync", "--no-first-run"]
-#: wraps Plotly.newPlot to record when each figure starts and is drawn (page time, ms)
+#: wraps Plotly.newPlot as plotly.js defines it, to record when each figure starts and is drawn
+#: (page time, ms)
 PROBE = """
 window.__figs = {};
-const iv = setInterval(() => {
-  if (!window.Plotly || window.__wrapped) return;
-  window.__wrapped = true; clearInterval(iv);
-  const newPlot = Plotly.newPlot;
-  Plotly.newPlot = function (id, ...rest) {
-    const t0 = performance.now();
-    return newPlot.call(Plotly, id, ...rest).then(r => { window.__figs[id] = [t0, performance.now()]; return r; });
-  };
-}, 0);
+let plotly;
+Object.defineProperty(window, "Plotly", {
+  configurable: true,
+  get() { return plotly; },
+  set(v) {  // plotly.js assigns window.Plotly once, before the page's figures start
+    const newPlot = v.newPlot;
+    v.newPlot = function (id, ...rest) {
+      const t0 = performance.now();
+      return newPlot.call(v, id, ...rest).then(r => { window.__figs[id] = [t0, performance.now()]; return r; });
+    };
+    plotly = v;
+  },
+});
 """
 
 

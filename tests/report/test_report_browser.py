@@ -222,3 +222,22 @@ def test_the_harness_fails_on_requests_and_errors(browser, tmp_path, body, needl
                     "</script></body></html>")
     with pytest.raises(AssertionError, match=re.escape(needle)):
         open_report(browser, page)
+
+
+@pytest.mark.slow
+def test_study_page_in_the_browser(browser, tmp_path):
+    """study.html: every figure drawn (SVG), one table row per study row, nothing requested."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("study_page_tests", Path(__file__).with_name("test_study_page.py"))
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    study = mod.make_study()
+    (tmp_path / "study.json").write_text(json.dumps(study))
+    assert run(["report", str(tmp_path)]) == 0
+    page, _ = open_report(browser, tmp_path / "study.html")
+    assert page.locator(".js-plotly-plot").count() == int(page.get_attribute("body", "data-figures")) == 3
+    for div in page.locator(".js-plotly-plot").all():
+        assert div.locator("svg.main-svg path").count() > 3, div.get_attribute("id")
+    assert page.locator("table.rows tr").count() == len(study["rows"]) + 4  # a header per table
+    page.close()

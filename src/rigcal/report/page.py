@@ -161,7 +161,7 @@ def _context(data: Mapping[str, Any]) -> dict[str, Any]:
         scale, unit = (1000.0, "mm") if h["unit"] == "m" else (1.0, h["unit"])
         holds.append({**h, "text": f"{h['rms_final'] * scale:.3f} {unit}"})
     # inside <script>: no "<" at all (no "</script>", no "<!--"), JSON's own escape keeps the text
-    figures_json = json.dumps(figures, separators=(",", ":"), allow_nan=False).replace("<", "\\u003c")
+    figures_json = figures_script_json(figures)
     js, js_version = plotly_js()
     return {
         "title": data.get("title", "rigcal report"),
@@ -197,8 +197,13 @@ def _context(data: Mapping[str, Any]) -> dict[str, Any]:
     }
 
 
-@lru_cache(maxsize=1)
-def _template():
+def figures_script_json(figures: list) -> str:
+    """Figure specs as JSON safe inside a ``<script>`` element (no ``<`` at all)."""
+    return json.dumps(figures, separators=(",", ":"), allow_nan=False).replace("<", "\\u003c")
+
+
+@lru_cache(maxsize=2)
+def _template(name: str = TEMPLATE):
     import jinja2
 
     # compiled once per user and template version into the temp folder (Jinja2's own bytecode
@@ -211,7 +216,7 @@ def _template():
         loader=jinja2.PackageLoader("rigcal.report", "templates"), bytecode_cache=cache,
         autoescape=True, trim_blocks=False, lstrip_blocks=False, undefined=jinja2.StrictUndefined,
     )
-    return env.get_template(TEMPLATE)
+    return env.get_template(name)
 
 
 def check_report_data(data: Any, source: str) -> Mapping[str, Any]:

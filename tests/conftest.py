@@ -1,4 +1,5 @@
-"""One Dask LocalCluster (2 worker processes) for every test of tests/study that needs one."""
+"""Fixtures shared across the test folders: one Dask LocalCluster (2 worker processes, started
+when a test first asks for it) for the tests that compare Dask runs with in-process runs."""
 
 from __future__ import annotations
 

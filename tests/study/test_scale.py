@@ -97,3 +97,20 @@ def test_cli_fig7_on_a_scheduler_address_equals_serial(dataset, dask_cluster, tm
     assert {r["k"] for r in rows} == set(range(3, 30))
     assert {r["config"] for r in rows} == {"MCPE(lidar)", "PSE", "FCPE"}
     assert all("sigma_m" not in r and r["table"] == "fig7" and r["draws"] == 1 for r in rows)
+
+
+def test_mocap_study_on_dask_equals_serial_and_writes_its_outputs(runner, tmp_path):
+    from rigcal.study.mocap_study import run_mocap_study, study_document
+
+    kwargs = dict(target="diamond", sensor="lidar", measurements=(3,), trials=2, seed=5)
+    serial = study_document(run_mocap_study(**kwargs))
+    dask = study_document(run_mocap_study(**kwargs, runner=runner), runner.description)
+    assert serial["rows"] == dask["rows"] and serial["trials"] == dask["trials"]  # exact
+    assert dask["meta"]["scheduler"].startswith("Dask")
+    assert {r["metric"] for r in serial["rows"]} == {"translation_mm", "rotation_deg", "translation_norm_diff_mm",
+                                                    "rotation_angle_diff_deg", "residual"}
+    row = next(r for r in serial["rows"] if r["metric"] == "translation_norm_diff_mm")
+    assert row["table"] == "mocap Table I" and row["paper_mean"] is None  # the paper has N = 5, 15, 30
+    assert row["n"] + row["failures"] == 2 and row["trials"] == 2
+    assert [t["trial"] for t in serial["trials"]] == [0, 1]
+    assert serial["meta"]["scheduler"] == "serial"

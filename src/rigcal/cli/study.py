@@ -12,7 +12,7 @@ from collections.abc import Sequence
 
 from rigcal.cli.args import count, number, subcommand
 
-#: :data:`rigcal.study.scale.SCHEDULER_HELP` (repeated: the parser must not import the study)
+#: --scheduler (:mod:`rigcal.study.scale`; the parser must not import it)
 SCHEDULER_HELP = ("where the draws run: 'local' (default: a Dask LocalCluster, one worker process "
                   "per core), 'serial' (in this process), or the ADDRESS of a running Dask "
                   "scheduler, e.g. tcp://10.0.0.5:8786")
@@ -29,6 +29,7 @@ EPILOG = """examples:
   rigcal study mocap --lidar-noise-mm 10 --mcs-noise-mm 0.15
   rigcal study mocap --target cylinder --sensor lidar --trials 20
   rigcal study mocap --target diamond --sensor camera --mcs-noise-mm 0.15
+  rigcal study mocap --trials 30 --out mocap_study/ --scheduler tcp://10.0.0.5:8786
 """
 
 
@@ -53,6 +54,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     parser.add_argument("--same-data", action="store_true",
                         help="every trial sees the same captures, only the initial calibration changes")
     parser.add_argument("--json", action="store_true", help="print the table as JSON")
+    parser.add_argument("--out", metavar="DIR", help="write study.md, study.json (every number) and mocap.png there")
+    parser.add_argument("--scheduler", default="local", metavar="local|serial|ADDRESS",
+                        help=SCHEDULER_HELP.replace("the draws", "the trials") + "; --same-data runs in this process")
     return parser
 
 
@@ -202,8 +206,11 @@ def run(args, console, parser: argparse.ArgumentParser) -> int:
         return run_prius(args, console)
     if args.study != "mocap":
         parser.parse_args(["--help"])  # prints the studies and exits 0
+    from rigcal.cli.output import progress_bar
     from rigcal.study.mocap_study import run as run_study
 
-    text, code = run_study(args)
+    with progress_bar(console) as bar:
+        task = bar.add_task("mocap study", total=None, unit="trials")
+        text, code = run_study(args, progress=lambda d, t: bar.update(task, completed=d, total=t))
     (sys.stdout if code == 0 else sys.stderr).write(text + "\n")
     return code

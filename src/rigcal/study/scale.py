@@ -90,12 +90,14 @@ class Runner:
 
 
 @contextmanager
-def task_runner(scheduler: str | None = LOCAL, workers: int | None = None) -> Iterator[Runner]:
+def task_runner(scheduler: str | None = LOCAL, workers: int | None = None,
+                tasks: int | None = None) -> Iterator[Runner]:
     """A :class:`Runner` for ``scheduler`` (see the module docstring); ``workers``: processes
-    of the local cluster (default: the number of cores). The cluster and client are closed on
-    exit, also when the block is interrupted."""
+    of the local cluster (default: the number of cores). ``tasks``: how many tasks will run, if
+    known - a local cluster is not started for a single task. The cluster and client are closed
+    on exit, also when the block is interrupted."""
     scheduler = (scheduler or LOCAL).strip()
-    if scheduler == SERIAL:
+    if scheduler == SERIAL or (scheduler == LOCAL and tasks is not None and tasks <= 1):
         yield Runner()
         return
     try:

@@ -102,7 +102,8 @@ def add_parser(sub) -> None:
     pr.add_argument("--draws", type=count(1, 100000), default=None,
                     help="random board sets for each of Table III, each K of Fig. 7 and each sigma of "
                     "Fig. 8 (default: the paper's 200 for Table III, 100 for the figures)")
-    pr.add_argument("--boards", type=count(3, 1000), default=10, help="boards per set (default 10)")
+    pr.add_argument("--boards", type=count(3, 1000), default=10,
+                    help="boards per set of Table III and Fig. 8 (default 10; Fig. 7 varies it)")
     pr.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     pr.add_argument("--out", metavar="DIR", help="write study.md, study.json and the figures' PNGs there")
     pr.add_argument("--scheduler", default="local", metavar="local|serial|ADDRESS", help=SCHEDULER_HELP)
@@ -162,7 +163,7 @@ def run_prius(args, console) -> int:
     rows, seconds = [], {}
     with progress_bar(console) as bar:
         def progress(label):
-            task = bar.add_task(label, total=None, unit="draws")
+            task = bar.add_task(label, total=None, unit="calibrations")
             return lambda d, t: bar.update(task, completed=d, total=t)
 
         with task_runner(args.scheduler if "II" != args.table else "serial") as runner:

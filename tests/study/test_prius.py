@@ -6,6 +6,7 @@ import json
 import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from rigcal.cli.main import run
@@ -80,3 +81,16 @@ def test_fig7_rows_are_well_formed_with_the_papers_values(prius, tmp_path):
     text = markdown(rows)
     assert "### Fig. 7" in text and "| 29 |" in text and "15.3 +- 0.0 (15.3)" in text
     assert [p.name for p in plot_figures(rows, tmp_path)] == ["fig7.png"]
+
+
+@pytest.mark.parametrize("mode, reference", [("pse", None), ("mcpe", "radar1")])
+def test_calibrate_poses_are_calibrates_poses_exactly(prius, mode, reference):
+    from rigcal.problem.calibrate import CalibrationOptions, calibrate, calibrate_poses
+
+    data = prius.select_boards(draw_sets(prius.num_boards, 10, 1, seed=7)[0])
+    options = CalibrationOptions(mode=mode, reference=reference)
+    full = calibrate(data, options)
+    poses = calibrate_poses(data, options)
+    assert set(poses) == set(full.sensors)
+    for name, est in full.sensors.items():
+        assert np.array_equal(poses[name], est.T_reference_sensor)

@@ -45,17 +45,29 @@ def test_a_failing_task_raises_here(runner):
         runner.map(operator.truediv, [1, 0, 2], shared=1)
 
 
-def test_table_iii_and_fig8_on_dask_equal_serial_exactly(dataset, runner):
-    serial = prius.table_iii(dataset, draws=1, seed=3) + prius.fig8(dataset, draws=1, seed=3, sigmas_m=(0.0, 0.03))
-    dask = (prius.table_iii(dataset, draws=1, seed=3, runner=runner)
-            + prius.fig8(dataset, draws=1, seed=3, sigmas_m=(0.0, 0.03), runner=runner))
-    doc_s = json.loads(prius.study_json(serial, {}))["rows"]
-    doc_d = json.loads(prius.study_json(dask, {}))["rows"]
-    assert doc_s == doc_d  # exact, not approximate
-    # the noise moves the lidar pairs; sigma 0 is Table III's draws (same seed, same sets)
-    by = {(r.table, r.config, r.pair, r.sigma_m): r.median_mm for r in serial}
-    assert by[("fig8", "FCPE", "lidar1-camera1", 0.03)] != by[("fig8", "FCPE", "lidar1-camera1", 0.0)]
-    assert by[("fig8", "FCPE", "lidar1-camera1", 0.0)] == by[("III", "FCPE", "lidar1-camera1", None)]
+def test_table_iii_on_dask_equals_serial_exactly(dataset, runner):
+    serial = prius.table_iii(dataset, draws=1, seed=3)
+    dask = prius.table_iii(dataset, draws=1, seed=3, runner=runner)
+    assert json.loads(prius.study_json(serial, {})) == json.loads(prius.study_json(dask, {}))  # exact
+
+
+def test_fig8_on_dask_equals_serial_exactly(dataset, runner):
+    serial = prius.fig8(dataset, draws=1, seed=3, sigmas_m=(0.0, 0.03))
+    dask = prius.fig8(dataset, draws=1, seed=3, sigmas_m=(0.0, 0.03), runner=runner)
+    assert json.loads(prius.study_json(serial, {})) == json.loads(prius.study_json(dask, {}))  # exact
+    by = {(r.config, r.pair, r.sigma_m): r.median_mm for r in serial}
+    assert by[("FCPE", "lidar1-camera1", 0.03)] != by[("FCPE", "lidar1-camera1", 0.0)]  # the noise moves it
+
+
+def test_fig8_at_sigma_0_is_table_iii_on_the_same_sets(dataset):
+    _, _, t3 = prius.table_iii_tasks(dataset, draws=4, seed=3)
+    for sigma, (label, mode, ref), tasks in prius.fig8_tasks(dataset, draws=4, seed=3, sigmas_m=(0.0, 0.01)):
+        same = [t for t in t3 if (t.mode, t.reference) == (mode, ref)]
+        if sigma == 0:
+            assert tasks == same
+        else:
+            assert [t.boards for t in tasks] == [t.boards for t in same]
+            assert [t.noise_seed for t in tasks] == [(3, 8, i) for i in range(4)]
 
 
 def test_fig8_noise_comes_from_seed_and_draw_only(dataset):
@@ -99,7 +111,7 @@ def test_cli_fig7_on_a_scheduler_address_equals_serial(dataset, dask_cluster, tm
     assert all("sigma_m" not in r and r["table"] == "fig7" and r["draws"] == 1 for r in rows)
 
 
-def test_mocap_study_on_dask_equals_serial_and_writes_its_outputs(runner, tmp_path):
+def test_mocap_study_on_dask_equals_serial(runner, tmp_path):
     from rigcal.study.mocap_study import run_mocap_study, study_document
 
     kwargs = dict(target="diamond", sensor="lidar", measurements=(3,), trials=2, seed=5)

@@ -80,3 +80,8 @@ def test_batch_refuses_a_manifest_and_same_named_folders(fleet, tmp_path, capsys
     assert run(["calibrate", "--batch", str(fleet / "car_a"), str(tmp_path / "x" / "car_a"),
                 "--out", str(tmp_path / "o")]) == 1
     assert "would both write to OUT/car_a/" in capsys.readouterr().err
+
+
+def test_scheduler_without_batch_is_refused(tmp_path, capsys):
+    assert run(["calibrate", str(MANIFEST), "--scheduler", "serial", "--out", str(tmp_path / "o")]) == 1
+    assert "--scheduler applies to --batch only" in capsys.readouterr().err

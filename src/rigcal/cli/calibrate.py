@@ -101,6 +101,10 @@ def run(args, console) -> int:
         from rigcal.cli.batch import run_batch
 
         return run_batch(args, console)
+    if args.scheduler != "local":
+        from rigcal.errors import InputError
+
+        raise InputError("--scheduler applies to --batch only (one dataset is calibrated in this process)")
     from rigcal.cli.codes import EXIT_FLAGGED
     from rigcal.cli.detect import detect_recording
     from rigcal.cli.output import not_written, summary

@@ -46,7 +46,8 @@ def _tree(folder: Path) -> dict[str, bytes]:
 
 @pytest.mark.slow
 def test_batch_on_dask_writes_what_calibrate_writes_alone_and_survives_a_broken_car(fleet, dask_cluster, tmp_path,
-                                                                                    capsys):
+                                                                                    capsys, monkeypatch):
+    monkeypatch.setenv("COLUMNS", "1000")  # the summary's error cell (a long path) on one line
     out = tmp_path / "out"
     code = run(["calibrate", "--batch", str(fleet / "car_a"), str(fleet / "car_b"), str(fleet / "car_c"),
                 "--cv-folds", "0", "--out", str(out), "--scheduler", dask_cluster.scheduler_address])

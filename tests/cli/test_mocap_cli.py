@@ -294,3 +294,17 @@ def test_mocap_cli_a_non_unit_quaternion_in_a_bag_pose_stream_is_one_line(scene,
     assert f"run.bag: topic {scene.target_topic}: message 100 (stamp " in err
     assert "expected a unit quaternion" in err
     assert not out.exists()
+
+
+def test_study_mocap_out_writes_markdown_json_and_plot(tmp_path, capsys):
+    out = tmp_path / "mocap"
+    assert run(["study", "mocap", "--trials", "1", "--measurements", "5", "--out", str(out)]) == 0
+    assert sorted(p.name for p in out.iterdir() if not p.name.startswith(".")) == ["mocap.png", "study.json",
+                                                                                   "study.md"]
+    doc = json.loads((out / "study.json").read_text())
+    assert doc["meta"]["trials"] == 1 and doc["meta"]["scheduler"] == "serial"  # 1 trial: no cluster
+    rows = {r["metric"]: r for r in doc["rows"]}
+    assert rows["translation_norm_diff_mm"]["paper_mean"] == 0.3 and rows["residual"]["paper_mean"] == 2.2
+    assert rows["translation_mm"]["measurements"] == 5 and rows["translation_mm"]["mean"] is not None
+    md = (out / "study.md").read_text()
+    assert "| 5 | 1/1 |" in md and "![mocap](mocap.png)" in md

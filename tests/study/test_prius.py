@@ -3,13 +3,15 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from rigcal.cli.main import run
 from rigcal.io.dataset.manifest import load_manifest
-from rigcal.study.prius import PAIR_NAMES, draw_sets, markdown, study_json, table_ii, table_iii
+from rigcal.study.prius import PAIR_NAMES, draw_sets, fig7, markdown, plot_figures, study_json, table_ii, table_iii
 
 MANIFEST = Path(__file__).resolve().parents[2] / "examples" / "prius" / "rig.yaml"
 SHARED = Path(__file__).resolve().parents[3] / "shared" / "data" / "tudelft_prius"
@@ -56,7 +58,39 @@ def test_draws_are_distinct_board_sets():
 
 def test_cli_writes_study_md_and_json(prius, tmp_path, capsys):
     out = tmp_path / "study"
-    assert run(["study", "prius", str(MANIFEST), "--table", "III", "--draws", "1", "--out", str(out)]) == 0
+    assert run(["study", "prius", str(MANIFEST), "--table", "III", "--draws", "1", "--out", str(out),
+                "--scheduler", "serial"]) == 0
     data = json.loads((out / "study.json").read_text())
     assert data["meta"]["draws"] == 1 and len(data["rows"]) == 15
     assert "Table III" in (out / "study.md").read_text() and "Table III" in capsys.readouterr().out
+
+
+def test_fig7_rows_are_well_formed_with_the_papers_values(prius, tmp_path):
+    rows = fig7(prius, draws=2, seed=1, ks=(3, 29))
+    assert {(r.k, r.config) for r in rows} == {(k, c) for k in (3, 29) for c in ("MCPE(lidar)", "PSE", "FCPE")}
+    assert all(r.table == "fig7" and r.draws == 2 and r.sigma_m is None for r in rows)
+    k29 = {(r.config, r.pair): r for r in rows if r.k == 29}
+    # K = 29: every set is all boards - no spread, Table II's 15.3 mm lidar-camera
+    assert all(r.mad_mm == 0.0 and math.isnan(r.heldout_median_mm) for r in k29.values())  # none held out
+    assert round(k29[("FCPE", "lidar1-camera1")].median_mm, 1) == 15.3 == k29[("FCPE", "lidar1-camera1")].paper_mm
+    assert "< 15 mm" in k29[("FCPE", "lidar1-radar1")].paper_note
+    k3 = [r for r in rows if r.k == 3]
+    assert all(r.paper_mm is None and r.mad_mm > 0 for r in k3)
+    doc = json.loads(study_json(rows, {}))["rows"]
+    assert all(d["k"] in (3, 29) and "sigma_m" not in d for d in doc)
+    text = markdown(rows)
+    assert "### Fig. 7" in text and "| 29 |" in text and "15.3 +- 0.0 (15.3)" in text
+    assert [p.name for p in plot_figures(rows, tmp_path)] == ["fig7.png"]
+
+
+@pytest.mark.parametrize("mode, reference", [("pse", None), ("mcpe", "radar1")])
+def test_calibrate_poses_are_calibrates_poses_exactly(prius, mode, reference):
+    from rigcal.problem.calibrate import CalibrationOptions, calibrate, calibrate_poses
+
+    data = prius.select_boards(draw_sets(prius.num_boards, 10, 1, seed=7)[0])
+    options = CalibrationOptions(mode=mode, reference=reference)
+    full = calibrate(data, options)
+    poses = calibrate_poses(data, options)
+    assert set(poses) == set(full.sensors)
+    for name, est in full.sensors.items():
+        assert np.array_equal(poses[name], est.T_reference_sensor)

@@ -11,13 +11,21 @@ EPILOG = """examples:
   rigcal calibrate rig.yaml --mode fcpe --out results/
   rigcal calibrate rig.yaml --mode pse --reference lidar1 --out results/ --json
   rigcal calibrate --lidar lidar.csv --camera camera.csv --radar radar.csv --mode fcpe --out results/
+  rigcal calibrate --batch fleet/car01 fleet/car02 fleet/car03 --out results/   # results/car01/ ...
+  rigcal calibrate --batch fleet/* --out results/ --scheduler tcp://10.0.0.5:8786
 
 writes calibration.yaml, <sensor>.yaml, calibration.launch and report.html (open it in a
 browser: verdict, poses, residuals, 3D detections, coverage; works offline)
 
 exit codes: 0 consistent result written; 1 error; 2 usage; 3 the result contradicts its own
-noise model (nothing written unless --force)
+noise model (nothing written unless --force); with --batch: 4 some datasets failed (the others
+are written), 3 some were flagged, 1 all failed
 """
+
+#: --scheduler's help (:mod:`rigcal.study.scale`; not imported by the parser)
+SCHEDULER_HELP = ("--batch: where the calibrations run: 'local' (default: a Dask LocalCluster, one "
+                  "worker process per core), 'serial' (in this process), or the ADDRESS of a running "
+                  "Dask scheduler, e.g. tcp://10.0.0.5:8786")
 
 
 def add_parser(sub) -> None:
@@ -40,6 +48,13 @@ def add_parser(sub) -> None:
     c.add_argument("--radar3d", action="append", default=[], metavar="FILE", help="3D radar detections (repeatable)")
     c.add_argument("--mode", default="fcpe", choices=["mcpe", "fcpe", "pse"], help="configuration (default fcpe)")
     c.add_argument("--reference", help="reference sensor name (default: manifest's, else first lidar)")
+    c.add_argument(
+        "--batch", nargs="+", metavar="DIR",
+        help="calibrate many datasets (e.g. a fleet of vehicles), each DIR holding a rig.yaml "
+        "manifest; results go to OUT/<DIR's name>/, one failing dataset does not stop the others, "
+        "a summary table ends the run",
+    )
+    c.add_argument("--scheduler", default="local", metavar="local|serial|ADDRESS", help=SCHEDULER_HELP)
     c.add_argument("--out", required=True, metavar="DIR", help="output folder")
     c.add_argument("--json", action="store_true", help="print the result as JSON on stdout")
     c.add_argument("--ignore", metavar="FILE", help="original tool's ignore file (sensor -> CSV columns)")
@@ -68,18 +83,41 @@ def add_parser(sub) -> None:
     c.set_defaults(func=run)
 
 
+def options_from(args):
+    """The :class:`CalibrationOptions` the command-line options ask for."""
+    from rigcal.io.results.calibration_files import read_initial_poses
+    from rigcal.problem.calibrate import CalibrationOptions
+
+    return CalibrationOptions(
+        mode=args.mode,
+        reference=args.reference,
+        detect_outliers=not args.keep_outliers,
+        hold_radar_plane=args.hold_radar_plane,
+        initial=read_initial_poses(args.initial) if args.initial else None,
+        cross_validation_folds=args.cv_folds,
+        pse_noise=args.pse_noise,
+    )
+
+
 def run(args, console) -> int:
+    if args.batch:
+        from rigcal.cli.batch import run_batch
+
+        return run_batch(args, console)
+    if args.scheduler != "local":
+        from rigcal.errors import InputError
+
+        raise InputError("--scheduler applies to --batch only (one dataset is calibrated in this process)")
     from rigcal.cli.codes import EXIT_FLAGGED
     from rigcal.cli.detect import detect_recording
     from rigcal.cli.output import not_written, summary
     from rigcal.errors import InputError
     from rigcal.io.atomic import staged_folder
-    from rigcal.io.results.calibration_files import read_initial_poses
     from rigcal.io.dataset.ignore import read_ignore_file
     from rigcal.io.dataset.manifest import dataset_from_files, load_manifest
     from rigcal.io.results.calibration import result_to_json_text, write_results
     from rigcal.io.results.report import write_report
-    from rigcal.problem.calibrate import CalibrationOptions, calibrate
+    from rigcal.problem.calibrate import calibrate
     from rigcal.report.data import calibration_report
     from rigcal.report.raw import with_raw
 
@@ -102,16 +140,7 @@ def run(args, console) -> int:
         raise InputError("no input: give a rig.yaml manifest or --lidar/--camera/--radar files")
     if args.ignore:
         dataset = dataset.with_excluded(read_ignore_file(args.ignore, dataset))
-    options = CalibrationOptions(
-        mode=args.mode,
-        reference=args.reference,
-        detect_outliers=not args.keep_outliers,
-        hold_radar_plane=args.hold_radar_plane,
-        initial=read_initial_poses(args.initial) if args.initial else None,
-        cross_validation_folds=args.cv_folds,
-        pse_noise=args.pse_noise,
-    )
-    result = calibrate(dataset, options)
+    result = calibrate(dataset, options_from(args))
     if result.flagged and not args.force:
         summary(result, console)
         return not_written(console)

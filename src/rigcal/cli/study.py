@@ -12,6 +12,11 @@ from collections.abc import Sequence
 
 from rigcal.cli.args import count, number, subcommand
 
+#: --scheduler (:mod:`rigcal.study.scale`; the parser must not import it)
+SCHEDULER_HELP = ("where the draws run: 'local' (default: a Dask LocalCluster, one worker process "
+                  "per core), 'serial' (in this process), or the ADDRESS of a running Dask "
+                  "scheduler, e.g. tcp://10.0.0.5:8786")
+
 #: the study's targets and sensors (:data:`rigcal.study.mocap_study.TARGETS` / ``SENSORS``)
 TARGETS = ("diamond", "cylinder")
 SENSORS = ("lidar", "camera")
@@ -24,6 +29,7 @@ EPILOG = """examples:
   rigcal study mocap --lidar-noise-mm 10 --mcs-noise-mm 0.15
   rigcal study mocap --target cylinder --sensor lidar --trials 20
   rigcal study mocap --target diamond --sensor camera --mcs-noise-mm 0.15
+  rigcal study mocap --trials 30 --out mocap_study/ --scheduler tcp://10.0.0.5:8786
 """
 
 
@@ -48,6 +54,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     parser.add_argument("--same-data", action="store_true",
                         help="every trial sees the same captures, only the initial calibration changes")
     parser.add_argument("--json", action="store_true", help="print the table as JSON")
+    parser.add_argument("--out", metavar="DIR", help="write study.md, study.json (every number) and mocap.png there")
+    parser.add_argument("--scheduler", default="local", metavar="local|serial|ADDRESS",
+                        help=SCHEDULER_HELP.replace("the draws", "the trials") + "; --same-data runs in this process")
     return parser
 
 
@@ -70,23 +79,34 @@ def add_parser(sub) -> None:
     ))
     pr = subcommand(
         st_sub, "prius",
-        help="Domhof et al. Tables II-III on the shared Prius detections",
+        help="Domhof et al. Tables II-III and Figs. 7-8 on the shared Prius detections",
         description="Reproduce Domhof et al.'s Table II (single-board vs all-board lidar-stereo "
-        "RMSE) and Table III (median +- MAD of the RMSE over random sets of boards, per "
-        "configuration and pair) on a dataset manifest (default: the shared Prius detections, "
-        "examples/prius/rig.yaml). Every RMSE is reported on all boards (the paper's choice) "
-        "and on the boards the draw did not use. Prints Markdown tables next to the paper's "
-        "values; --out DIR also writes study.md and study.json (every number).",
+        "RMSE), Table III (median +- MAD of the RMSE over random sets of boards, per "
+        "configuration and pair), Fig. 7 (the same for K = 3..29 boards) and Fig. 8 (10 boards, "
+        "Gaussian noise of std sigma added to the lidar's detections) on a dataset manifest "
+        "(default: the shared Prius detections, examples/prius/rig.yaml). Every RMSE is "
+        "reported on all boards (the paper's choice) and on the boards the draw did not use. "
+        "Prints Markdown tables next to the paper's values; --out DIR also writes study.md, "
+        "study.json (every number) and fig7.png / fig8.png. The draws run as Dask tasks "
+        "(--scheduler); the numbers are the same on any scheduler for the same --seed.",
         epilog="examples:\n  rigcal study prius --table III --draws 200 --out prius_study/\n"
-        "  rigcal study prius examples/prius/rig.yaml --table II",
+        "  rigcal study prius examples/prius/rig.yaml --table II\n"
+        "  rigcal study prius --table fig7 --draws 100 --out fig7/\n"
+        "  rigcal study prius --table all --scheduler tcp://10.0.0.5:8786 --out prius_study/\n"
+        "  rigcal study prius --table III --draws 20 --scheduler serial",
     )
     pr.add_argument("manifest", nargs="?", default=None, metavar="RIG.yaml",
                     help="dataset manifest (default: examples/prius/rig.yaml of this checkout)")
-    pr.add_argument("--table", choices=("II", "III", "all"), default="all")
-    pr.add_argument("--draws", type=count(1, 100000), default=200, help="random board sets (default 200)")
-    pr.add_argument("--boards", type=count(3, 1000), default=10, help="boards per set (default 10)")
+    pr.add_argument("--table", choices=("II", "III", "fig7", "fig8", "all"), default="all",
+                    help="what to run (default all: II, III, fig7 and fig8)")
+    pr.add_argument("--draws", type=count(1, 100000), default=None,
+                    help="random board sets for each of Table III, each K of Fig. 7 and each sigma of "
+                    "Fig. 8 (default: the paper's 200 for Table III, 100 for the figures)")
+    pr.add_argument("--boards", type=count(3, 1000), default=10,
+                    help="boards per set of Table III and Fig. 8 (default 10; Fig. 7 varies it)")
     pr.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    pr.add_argument("--out", metavar="DIR", help="write study.md and study.json there")
+    pr.add_argument("--out", metavar="DIR", help="write study.md, study.json and the figures' PNGs there")
+    pr.add_argument("--scheduler", default="local", metavar="local|serial|ADDRESS", help=SCHEDULER_HELP)
     pr.add_argument("--json", action="store_true", help="print study.json on stdout instead of Markdown")
     st.set_defaults(func=lambda args, console: run(args, console, st))
 
@@ -121,6 +141,7 @@ def mocap_main(argv: Sequence[str] | None = None) -> tuple[str, int]:
 
 
 def run_prius(args, console) -> int:
+    import time
     from pathlib import Path
 
     from rigcal.cli.output import progress_bar
@@ -128,6 +149,7 @@ def run_prius(args, console) -> int:
     from rigcal.io.atomic import staged_folder
     from rigcal.io.dataset.manifest import load_manifest
     from rigcal.study import prius
+    from rigcal.study.scale import task_runner
 
     manifest = args.manifest
     if manifest is None:
@@ -135,21 +157,46 @@ def run_prius(args, console) -> int:
         if not manifest.is_file():
             raise InputError("no manifest given and examples/prius/rig.yaml not found beside the package")
     dataset = load_manifest(manifest)
-    rows = []
+    if args.boards > dataset.num_boards:
+        raise InputError(f"--boards {args.boards}: {manifest} has only {dataset.num_boards} boards")
+    tables = ("II", "III", "fig7", "fig8") if args.table == "all" else (args.table,)
+    rows, seconds = [], {}
     with progress_bar(console) as bar:
-        if args.table in ("II", "all"):
-            task = bar.add_task("Table II", total=None)
-            rows += prius.table_ii(dataset, progress=lambda d, t: bar.update(task, completed=d, total=t))
-        if args.table in ("III", "all"):
-            task = bar.add_task("Table III", total=None)
-            rows += prius.table_iii(dataset, draws=args.draws, k=args.boards, seed=args.seed,
-                                    progress=lambda d, t: bar.update(task, completed=d, total=t))
+        def progress(label):
+            task = bar.add_task(label, total=None, unit="calibrations")
+            return lambda d, t: bar.update(task, completed=d, total=t)
+
+        with task_runner(args.scheduler if "II" != args.table else "serial") as runner:
+            for table in tables:
+                t0 = time.perf_counter()
+                if table == "II":
+                    rows += prius.table_ii(dataset, progress=progress("Table II"))
+                elif table == "III":
+                    rows += prius.table_iii(dataset, draws=args.draws or 200, k=args.boards, seed=args.seed,
+                                            runner=runner, progress=progress("Table III"))
+                elif table == "fig7":
+                    rows += prius.fig7(dataset, draws=args.draws or prius.FIGURE_DRAWS, seed=args.seed,
+                                       ks=tuple(k for k in prius.FIG7_K if k <= dataset.num_boards),
+                                       runner=runner, progress=progress("Fig. 7"))
+                else:
+                    rows += prius.fig8(dataset, draws=args.draws or prius.FIGURE_DRAWS, k=args.boards,
+                                       seed=args.seed, runner=runner, progress=progress("Fig. 8"))
+                seconds[table] = round(time.perf_counter() - t0, 1)
+            where = runner.description
     meta = {"manifest": str(manifest), "draws": args.draws, "boards": args.boards, "seed": args.seed,
-            "rmse_on": {"median_mm": "all boards", "heldout_median_mm": "boards not in the draw"}}
+            "draws_default": {"III": 200, "fig7": prius.FIGURE_DRAWS, "fig8": prius.FIGURE_DRAWS},
+            "rmse_on": {"median_mm": "all boards", "heldout_median_mm": "boards not in the draw",
+                        "fig8": "the noise-free detections"},
+            "fig7_k": list(prius.FIG7_K), "fig8_sigma_m": list(prius.FIG8_SIGMA_M),
+            "figure_configurations": "MCPE with the lidar as reference, PSE, FCPE (as the paper)",
+            "paper_mm": "from the paper's tables and text only; its Figs. 7 and 8 are plots (not read off)",
+            "scheduler": where, "wall_time_s": seconds}
     text, data = prius.markdown(rows), prius.study_json(rows, meta)
     if args.out:
         with staged_folder(args.out) as stage:
-            (stage / "study.md").write_text(text)
+            figures = prius.plot_figures(rows, stage)
+            links = "".join(f"\n![{p.stem}]({p.name})\n" for p in figures)
+            (stage / "study.md").write_text(text + links)
             (stage / "study.json").write_text(data + "\n")
     sys.stdout.write((data if args.json else text) + "\n")
     return 0
@@ -160,8 +207,11 @@ def run(args, console, parser: argparse.ArgumentParser) -> int:
         return run_prius(args, console)
     if args.study != "mocap":
         parser.parse_args(["--help"])  # prints the studies and exits 0
+    from rigcal.cli.output import progress_bar
     from rigcal.study.mocap_study import run as run_study
 
-    text, code = run_study(args)
+    with progress_bar(console) as bar:
+        task = bar.add_task("mocap study", total=None, unit="trials")
+        text, code = run_study(args, progress=lambda d, t: bar.update(task, completed=d, total=t))
     (sys.stdout if code == 0 else sys.stderr).write(text + "\n")
     return code

@@ -520,6 +520,48 @@ def _cross_validation(
     return {k: float(np.sqrt(np.mean(np.concatenate(v)))) for k, v in sq.items()}
 
 
+def _fit_screened(
+    dataset: Dataset, mode: str, reference: str, options: CalibrationOptions
+) -> tuple[_Fit, Dataset, dict[str, set[int]]]:
+    """Initial guess, outlier screening and the mode's fit: (fit, dataset without the outliers,
+    outliers per sensor). Raises ConvergenceError when the fit does not converge."""
+    poses0 = initial_poses(
+        dataset, reference, robust=options.detect_outliers, given=options.initial
+    )
+    outliers: dict[str, set[int]] = {}
+    work = dataset
+    if options.detect_outliers:
+        outliers, poses0 = _robust_screen(dataset, reference, poses0, options)
+        work = dataset.with_excluded(outliers)
+    fit_mode = _fit_radar_reference if _radar_reference(dataset, mode, reference) else _fit
+    fit = fit_mode(work, mode, reference, poses0, options)
+    for _ in range(3):
+        if not (options.detect_outliers and fit.solution.converged):
+            break
+        more = find_outliers(work, fit.poses, options.outlier_rule)
+        if not more:
+            break
+        for s, ks in more.items():
+            outliers.setdefault(s, set()).update(ks)
+        work = dataset.with_excluded(outliers)
+        fit = fit_mode(work, mode, reference, fit.poses, options)
+    sol = fit.solution
+    if not sol.converged:
+        raise ConvergenceError(f"{mode.upper()} did not converge: {sol.status}")
+    return fit, work, outliers
+
+
+def calibrate_poses(dataset: Dataset, options: CalibrationOptions = CalibrationOptions()) -> dict[str, np.ndarray]:
+    """Only the poses ``T_reference_sensor`` that :func:`calibrate` would return (the same
+    initial guess, outlier screening and fit), without the covariance, the consistency checks,
+    warnings and cross-validation: for studies that only evaluate the poses. Raises as
+    :func:`calibrate`."""
+    reference = _check(dataset, options)
+    with threadpool_limits(limits=1):
+        fit, _, _ = _fit_screened(dataset, options.mode.lower(), reference, options)
+    return {s.name: np.array(fit.poses[s.name], dtype=float) for s in dataset.sensors}
+
+
 def calibrate(dataset: Dataset, options: CalibrationOptions = CalibrationOptions()) -> CalibrationResult:
     """Calibrate every sensor of ``dataset`` into the reference sensor's frame.
 
@@ -531,29 +573,7 @@ def calibrate(dataset: Dataset, options: CalibrationOptions = CalibrationOptions
     mode = options.mode.lower()
     ignored = {s.name: tuple(sorted(s.excluded)) for s in dataset.sensors if s.excluded}
     with threadpool_limits(limits=1):
-        poses0 = initial_poses(
-            dataset, reference, robust=options.detect_outliers, given=options.initial
-        )
-        outliers: dict[str, set[int]] = {}
-        work = dataset
-        if options.detect_outliers:
-            outliers, poses0 = _robust_screen(dataset, reference, poses0, options)
-            work = dataset.with_excluded(outliers)
-        fit_mode = _fit_radar_reference if _radar_reference(dataset, mode, reference) else _fit
-        fit = fit_mode(work, mode, reference, poses0, options)
-        for _ in range(3):
-            if not (options.detect_outliers and fit.solution.converged):
-                break
-            more = find_outliers(work, fit.poses, options.outlier_rule)
-            if not more:
-                break
-            for s, ks in more.items():
-                outliers.setdefault(s, set()).update(ks)
-            work = dataset.with_excluded(outliers)
-            fit = fit_mode(work, mode, reference, fit.poses, options)
-        sol = fit.solution
-        if not sol.converged:
-            raise ConvergenceError(f"{mode.upper()} did not converge: {sol.status}")
+        fit, work, outliers = _fit_screened(dataset, mode, reference, options)
         rmse, per_board = evaluate_pairs(work, fit.poses)
         cv = (
             _cross_validation(work, mode, reference, fit.poses, options)

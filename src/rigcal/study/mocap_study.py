@@ -42,7 +42,7 @@ import logging
 import math
 import time
 from dataclasses import dataclass
-from typing import Mapping, Sequence
+from typing import Mapping, NamedTuple, Sequence
 
 import numpy as np
 
@@ -253,6 +253,95 @@ class StudyTable:
         lines += list(self.notes)
         return "\n".join(lines)
 
+    METRICS = (("translation_mm", "translation error [mm]", 0), ("rotation_deg", "rotation error [deg]", 1),
+               ("translation_norm_diff_mm", "translation, paper's definition [mm]", 0),
+               ("rotation_angle_diff_deg", "rotation, paper's definition [deg]", 1),
+               ("residual", "residual", 2))
+
+    def json_rows(self) -> list[dict]:
+        """One row per (N, metric): mean, std and count over the successful trials, the paper's
+        mean and std (its tables report translation and rotation in its own definitions - they
+        sit beside both of ours - and the residual), trials and failures."""
+        paper = self.paper()
+        table = PAPER_TABLE_NAMES.get((self.target, self.sensor))
+        out = []
+        for r in sorted(self.rows, key=lambda r: r.measurements):
+            p = paper.get(r.measurements)
+            for key, label, col in self.METRICS:
+                st = getattr(r, key)
+                unit = self.residual_name if key == "residual" else label
+                out.append({
+                    "table": f"mocap {table}" if table else "mocap", "target": self.target, "sensor": self.sensor,
+                    "mcs_noise_m": self.mcs_noise_m, "measurements": r.measurements, "metric": key,
+                    "unit": unit, "mean": _finite(st.mean), "std": _finite(st.std), "n": st.n,
+                    "paper_mean": p[col][0] if p else None, "paper_std": p[col][1] if p else None,
+                    "trials": r.trials + r.failed, "failures": r.failed,
+                })
+        return out
+
+    def markdown(self) -> str:
+        """The table as Markdown, the paper's values beside ours (``format`` is the plain-text
+        version)."""
+        paper = self.paper()
+        name = PAPER_TABLE_NAMES.get((self.target, self.sensor), "no table in the paper")
+        head = self.format().splitlines()
+        lines = [f"### Motion-capture study: {self.target} target, {self.sensor} (paper: Charron et al., {name})",
+                 "", head[0], "", head[1], ""]
+        if self.method:
+            lines += [f"Method: {self.method}", ""]
+        res = self.residual_name
+        lines += [f"| N | ok | translation err [mm] | paper-def [mm] | rotation err [deg] | paper-def [deg] | {res} "
+                  f"| paper trans [mm] | paper rot [deg] | paper {res} |",
+                  "| --- |" + " --- |" * 9]
+
+        def pm(st: Stat, fmt: str) -> str:
+            return "n/a" if st.n == 0 else f"{st.mean:{fmt}} +- {st.std:{fmt}}"
+
+        for r in sorted(self.rows, key=lambda r: -r.measurements):
+            p = paper.get(r.measurements)
+            theirs = ([f"{v[0]:.3g} +- {v[1]:.2g}" for v in p] if p else ["-", "-", "-"])
+            lines.append(f"| {r.measurements} | {r.trials}/{r.trials + r.failed} | {pm(r.translation_mm, '.3g')} | "
+                         f"{pm(r.translation_norm_diff_mm, '.3g')} | {pm(r.rotation_deg, '.2e')} | "
+                         f"{pm(r.rotation_angle_diff_deg, '.2e')} | {pm(r.residual, '.3g')} | " + " | ".join(theirs) + " |")
+        lines += [""] + [ln for ln in head if ln.startswith(("target:", "failed:"))]
+        tail = [ln for ln in head if "captures simulated" in ln]
+        return "\n".join(lines + tail) + "\n"
+
+    def plot(self, path) -> None:
+        """Write a PNG: translation error, rotation error (ours and the paper's definitions) and
+        the residual against N, mean +- std over the trials; the paper's values as black marks."""
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        paper = self.paper()
+        rows = sorted(self.rows, key=lambda r: r.measurements)
+        n = np.array([r.measurements for r in rows], dtype=float)
+        fig, axes = plt.subplots(1, 3, figsize=(12.6, 3.6))
+        panels = (("translation [mm]", ("translation_mm", "translation_norm_diff_mm"), 0),
+                  ("rotation [deg]", ("rotation_deg", "rotation_angle_diff_deg"), 1),
+                  (self.residual_name, ("residual",), 2))
+        for ax, (title, keys, col) in zip(axes, panels):
+            for key in keys:
+                m = np.array([getattr(r, key).mean for r in rows])
+                sd = np.array([getattr(r, key).std for r in rows])
+                label = "ours, paper's definition" if key.endswith("diff_mm") or key.endswith("diff_deg") else "ours"
+                ax.errorbar(n, m, yerr=sd, marker="o", capsize=3, label=label)
+            pts = [(r.measurements, paper[r.measurements][col]) for r in rows if r.measurements in paper]
+            if pts:
+                ax.errorbar([p[0] for p in pts], [p[1][0] for p in pts], yerr=[p[1][1] for p in pts], fmt="kx",
+                            markersize=8, capsize=3, label="paper")
+            ax.set_title(title)
+            ax.set_xlabel("measurements N")
+            ax.set_yscale("log")
+            ax.grid(alpha=0.3)
+            ax.legend(fontsize=8)
+        fig.suptitle(f"Mocap study: {self.target} / {self.sensor}, {self.trials} trials (mean +- std)")
+        fig.tight_layout()
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+
     def as_dict(self) -> dict:
         """Plain values (for JSON)."""
 
@@ -286,6 +375,10 @@ class StudyTable:
 
 # --------------------------------------------------------------------------------------------
 # steps
+
+
+def _finite(x: float) -> float | None:
+    return float(x) if math.isfinite(x) else None
 
 
 def perturb_calibration(T_robot_sensor: np.ndarray, rng: np.random.Generator, translation_m: float = 0.03,
@@ -479,6 +572,89 @@ def _check_args(target: str, sensor: str, measurements, trials: int, mcs_noise_m
     return ns
 
 
+@dataclass(frozen=True, eq=False)
+class _TrialContext:
+    """What every trial of a study shares (sent once to each Dask worker)."""
+
+    sensor: str
+    rig: MocapRig
+    target: Target
+    T_true: np.ndarray
+    ns: tuple[int, ...]
+    seed: int
+    mcs_noise_m: float
+    lidar_range_sigma_m: float
+    placement: Placement
+    options: MocapOptions
+    lidar_measurement: str
+    extractor: _Extractor
+    cap: int
+
+
+class _TrialOutcome(NamedTuple):
+    results: list
+    skipped: dict
+    simulated: int
+    simulate_s: float
+    extract_s: float
+    calibrate_s: float
+
+
+def _run_trial(ctx: _TrialContext, trial: int, pool: list | None = None,
+               data_rng: np.random.Generator | None = None) -> _TrialOutcome:
+    """One trial: perturbed start from ``(seed, trial)``, captures until ``max(ns)``
+    measurements, a calibration per N. ``pool``/``data_rng``: the captures shared by every trial
+    (``same_data``); otherwise the trial simulates its own from its own generator."""
+    rng = np.random.default_rng([ctx.seed, trial])
+    T_init = perturb_calibration(ctx.T_true, rng)
+    own = pool is None
+    pool = [] if own else pool
+    sim_rng = rng if own else data_rng
+    need = ctx.ns[-1]
+    obs: list[TargetObservation] = []
+    skipped: dict[str, int] = {}
+    results: list[TrialResult] = []
+    simulated = 0
+    t_sim = t_ext = t_cal = 0.0
+    index = 0
+    while len(obs) < need and index < ctx.cap:
+        if index >= len(pool):
+            batch = min(need - len(obs) + 2, ctx.cap - index)
+            t0 = time.perf_counter()
+            sim = simulate_mocap(ctx.rig, ctx.target, batch, sim_rng, sensors=(ctx.sensor,),
+                                 mcs_noise_m=ctx.mcs_noise_m, lidar_range_sigma_m=ctx.lidar_range_sigma_m,
+                                 placement=ctx.placement, first_index=len(pool))
+            t_sim += time.perf_counter() - t0
+            simulated += batch
+            pool.extend((sim, c) for c in sim.captures)
+        sim, c = pool[index]
+        index += 1
+        t0 = time.perf_counter()
+        o = extract_observation(c, sim, ctx.sensor, T_init, ctx.extractor, ctx.lidar_measurement)
+        t_ext += time.perf_counter() - t0
+        if isinstance(o, TargetObservation):
+            obs.append(o)
+        else:
+            skipped[o.reason] = skipped.get(o.reason, 0) + 1
+    for n in ctx.ns:
+        if len(obs) < n:
+            nan = math.nan
+            results.append(TrialResult(trial, n, nan, nan, nan, nan, nan, nan, nan, 0.0,
+                                       f"only {len(obs)} measurements from {index} captures"))
+            continue
+        t0 = time.perf_counter()
+        results.append(_calibrate(obs[:n], ctx.sensor, ctx.rig, ctx.target, T_init, ctx.T_true, trial, n,
+                                  ctx.options, ctx.lidar_range_sigma_m))
+        t_cal += time.perf_counter() - t0
+    log.debug("mocap study trial %d: %d measurements from %d captures", trial, len(obs), index)
+    return _TrialOutcome(results, skipped, simulated, t_sim, t_ext, t_cal)
+
+
+def _trial_task(ctx: _TrialContext, trial: int) -> _TrialOutcome:
+    """A trial as a Dask task (its own captures)."""
+    return _run_trial(ctx, trial)
+
+
 def run_mocap_study(
     target: str = "diamond",
     sensor: str = LIDAR,
@@ -497,6 +673,7 @@ def run_mocap_study(
     same_data: bool = False,
     max_captures_factor: float = 3.0,
     progress=None,
+    runner=None,
 ) -> StudyTable:
     """Run the paper's simulation study for one target (``"diamond"`` / ``"cylinder"``) and
     one sensor (``"lidar"`` / ``"camera"``); see the module docstring.
@@ -515,6 +692,9 @@ def run_mocap_study(
     A trial that cannot gather ``max(measurements)`` measurements within
     ``max_captures_factor`` times as many captures uses what it has for the larger N (those
     rows count it as failed). ``progress(done, total)`` is called after every trial.
+    ``runner``: a :class:`rigcal.study.scale.Runner` to run the trials on (e.g. Dask; default
+    in this process); every trial is seeded by ``(seed, trial)``, so the numbers do not depend
+    on it. With ``same_data`` the trials share one pool of captures and run in this process.
     """
     ns = _check_args(target, sensor, measurements, trials, mcs_noise_m)
     if lidar_measurement not in ("keypoints", "points"):
@@ -530,54 +710,34 @@ def run_mocap_study(
     rig = paper_rig(overlapping=overlapping)
     T_true = rig.T_robot_sensor(sensor)
     need = ns[-1]
-    results: list[TrialResult] = []
-    skipped: dict[str, int] = {}
-    simulated = 0
-    t_sim = t_ext = t_cal = 0.0
     t_start = time.perf_counter()
-    ex = _Extractor(tdef, sensor, rig, _uncertainty())
-    cap = int(math.ceil(max_captures_factor * need)) + 5
-    data_rng = np.random.default_rng([int(seed), 7919]) if same_data else None
-    shared: list[tuple[MocapSimulation, MocapCapture]] = []
-    for trial in range(int(trials)):
-        rng = np.random.default_rng([int(seed), trial])
-        T_init = perturb_calibration(T_true, rng)
-        pool = shared if same_data else []
-        sim_rng = data_rng if same_data else rng
-        obs: list[TargetObservation] = []
-        index = 0
-        while len(obs) < need and index < cap:
-            if index >= len(pool):
-                batch = min(need - len(obs) + 2, cap - index)
-                t0 = time.perf_counter()
-                sim = simulate_mocap(rig, tdef, batch, sim_rng, sensors=(sensor,), mcs_noise_m=mcs_noise_m,
-                                     lidar_range_sigma_m=lidar_range_sigma_m, placement=placement,
-                                     first_index=len(pool))
-                t_sim += time.perf_counter() - t0
-                simulated += batch
-                pool.extend((sim, c) for c in sim.captures)
-            sim, c = pool[index]
-            index += 1
-            t0 = time.perf_counter()
-            o = extract_observation(c, sim, sensor, T_init, ex, lidar_measurement)
-            t_ext += time.perf_counter() - t0
-            if isinstance(o, TargetObservation):
-                obs.append(o)
-            else:
-                skipped[o.reason] = skipped.get(o.reason, 0) + 1
-        for n in ns:
-            if len(obs) < n:
-                nan = math.nan
-                results.append(TrialResult(trial, n, nan, nan, nan, nan, nan, nan, nan, 0.0,
-                                           f"only {len(obs)} measurements from {index} captures"))
-                continue
-            t0 = time.perf_counter()
-            results.append(_calibrate(obs[:n], sensor, rig, tdef, T_init, T_true, trial, n, options,
-                                      lidar_range_sigma_m))
-            t_cal += time.perf_counter() - t0
-        log.debug("mocap study trial %d: %d measurements from %d captures", trial, len(obs), index)
-        if progress is not None:
-            progress(trial + 1, int(trials))
+    ctx = _TrialContext(
+        sensor=sensor, rig=rig, target=tdef, T_true=T_true, ns=ns, seed=int(seed), mcs_noise_m=mcs_noise_m,
+        lidar_range_sigma_m=lidar_range_sigma_m, placement=placement, options=options,
+        lidar_measurement=lidar_measurement, extractor=_Extractor(tdef, sensor, rig, _uncertainty()),
+        cap=int(math.ceil(max_captures_factor * need)) + 5,
+    )
+    if same_data or runner is None:
+        # same_data: every trial draws from one growing pool of captures - one after the other
+        data_rng = np.random.default_rng([int(seed), 7919]) if same_data else None
+        shared: list[tuple[MocapSimulation, MocapCapture]] = []
+        outcomes = []
+        for trial in range(int(trials)):
+            outcomes.append(_run_trial(ctx, trial, shared if same_data else None, data_rng))
+            if progress is not None:
+                progress(trial + 1, int(trials))
+    else:
+        outcomes = runner.map(_trial_task, list(range(int(trials))), shared=ctx, progress=progress,
+                              name="mocap-trial")
+    results: list[TrialResult] = [r for o in outcomes for r in o.results]
+    skipped: dict[str, int] = {}
+    for o in outcomes:
+        for k, v in o.skipped.items():
+            skipped[k] = skipped.get(k, 0) + v
+    simulated = sum(o.simulated for o in outcomes)
+    t_sim = sum(o.simulate_s for o in outcomes)
+    t_ext = sum(o.extract_s for o in outcomes)
+    t_cal = sum(o.calibrate_s for o in outcomes)
     total = time.perf_counter() - t_start
     rows = []
     for n in ns:
@@ -632,18 +792,36 @@ def _describe(target, sensor, lidar_measurement, correspondences, lidar_range_si
 # what `rigcal study mocap` runs (its options and parser: rigcal.cli.study)
 
 
-def run(args: argparse.Namespace) -> tuple[str, int]:
-    """Run the study for parsed ``args``; returns (text to print, exit code)."""
+def run(args: argparse.Namespace, progress=None) -> tuple[str, int]:
+    """Run the study for parsed ``args``; returns (text to print, exit code). ``--out DIR``
+    writes study.md, study.json (``{"meta", "rows", "trials"}``: every number) and mocap.png
+    there; ``--scheduler`` says where the trials run (:mod:`rigcal.study.scale`)."""
+    from rigcal.study.scale import SERIAL, task_runner
+
+    scheduler = getattr(args, "scheduler", SERIAL)
     try:
-        table = run_mocap_study(
-            target=args.target, sensor=args.sensor, measurements=tuple(args.measurements),
-            trials=args.trials, mcs_noise_m=args.mcs_noise_mm * 1e-3, seed=args.seed,
-            overlapping=bool(getattr(args, "overlapping", False)),
-            lidar_measurement=getattr(args, "lidar_measurement", "points"),
-            correspondences=getattr(args, "correspondences", "surface"),
-            lidar_range_sigma_m=getattr(args, "lidar_noise_mm", 0.0) * 1e-3,
-            same_data=bool(getattr(args, "same_data", False)),
-        )
+        with task_runner(scheduler, tasks=args.trials) as runner:
+            table = run_mocap_study(
+                target=args.target, sensor=args.sensor, measurements=tuple(args.measurements),
+                trials=args.trials, mcs_noise_m=args.mcs_noise_mm * 1e-3, seed=args.seed,
+                overlapping=bool(getattr(args, "overlapping", False)),
+                lidar_measurement=getattr(args, "lidar_measurement", "points"),
+                correspondences=getattr(args, "correspondences", "surface"),
+                lidar_range_sigma_m=getattr(args, "lidar_noise_mm", 0.0) * 1e-3,
+                same_data=bool(getattr(args, "same_data", False)),
+                runner=runner, progress=progress,
+            )
+            where = runner.description
+        out = getattr(args, "out", None)
+        if out:
+            import json
+
+            from rigcal.io.atomic import staged_folder
+
+            with staged_folder(out) as stage:
+                table.plot(stage / "mocap.png")
+                (stage / "study.md").write_text(table.markdown() + "\n![mocap](mocap.png)\n")
+                (stage / "study.json").write_text(json.dumps(study_document(table, where), indent=1) + "\n")
     except RigcalError as exc:
         return f"rigcal: error: {exc}", 1
     if getattr(args, "json", False):
@@ -651,3 +829,16 @@ def run(args: argparse.Namespace) -> tuple[str, int]:
 
         return json.dumps(table.as_dict(), indent=2), 0
     return table.format(), 0
+
+
+def study_document(table: StudyTable, scheduler: str = "serial") -> dict:
+    """study.json of a mocap study: ``meta`` (settings, method, timings), ``rows`` (one per N and
+    metric, :meth:`StudyTable.json_rows`) and ``trials`` (every trial's numbers)."""
+    d = table.as_dict()
+    meta = {k: d[k] for k in ("target", "sensor", "mcs_noise_m", "trials", "seed", "residual_name",
+                              "time_per_trial_s", "skipped_captures", "captures_simulated")}
+    meta.update(method=table.method, target_source=table.target_source, notes=list(table.notes),
+                scheduler=scheduler, paper="Charron et al., " + PAPER_TABLE_NAMES.get(
+                    (table.target, table.sensor), "no table for this target and sensor"))
+    trials = [{k: (_finite(v) if isinstance(v, float) else v) for k, v in r.items()} for r in d["results"]]
+    return {"meta": meta, "rows": table.json_rows(), "trials": trials}

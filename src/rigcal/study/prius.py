@@ -17,14 +17,14 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import asdict, dataclass
-from typing import Callable, Sequence
+from dataclasses import asdict, dataclass, replace
+from typing import Callable, Dict, NamedTuple, Optional, Sequence, Tuple
 
 import numpy as np
 
 from rigcal.dataset import Dataset
 from rigcal.errors import RigcalError
-from rigcal.problem.calibrate import CalibrationOptions, calibrate
+from rigcal.problem.calibrate import CalibrationOptions, calibrate_poses
 from rigcal.problem.evaluate import evaluate_pairs
 
 #: the paper's Table III (median +- MAD [mm]): configuration -> (l2c, l2r, c2r)
@@ -60,6 +60,11 @@ class Row:
     paper_spread_mm: float | None
     draws: int
     failures: int
+    #: Fig. 7: boards per set; Fig. 8: std [m] of the noise added to the lidar's detections
+    k: int | None = None
+    sigma_m: float | None = None
+    #: where the paper's value comes from, or why there is none
+    paper_note: str | None = None
 
 
 def configurations(dataset: Dataset) -> list[tuple[str, str, str | None]]:
@@ -86,51 +91,235 @@ def _rmse_mm(dataset: Dataset, poses, boards: np.ndarray | None) -> dict[str, fl
     return {k: 1000.0 * v for k, v in rm.items()}
 
 
-def draw_sets(num_boards: int, k: int, draws: int, seed: int) -> list[np.ndarray]:
-    """``draws`` seeded random sets of ``k`` of ``num_boards`` boards (sorted indices)."""
-    rng = np.random.default_rng(seed)
+def draw_sets(num_boards: int, k: int, draws: int, seed: int | Sequence[int]) -> list[np.ndarray]:
+    """``draws`` seeded random sets of ``k`` of ``num_boards`` boards (sorted indices); ``seed``
+    an integer or a sequence of integers (numpy's seed sequence)."""
+    rng = np.random.default_rng(seed if isinstance(seed, int) else [int(x) for x in seed])
     return [np.sort(rng.choice(num_boards, size=k, replace=False)) for _ in range(draws)]
 
 
 def _fit_poses(dataset: Dataset, mode: str, reference: str | None):
-    result = calibrate(dataset, CalibrationOptions(mode=mode, reference=reference,
-                                                   cross_validation_folds=0))
-    return {n: est.T_reference_sensor for n, est in result.sensors.items()}
+    # the poses calibrate() returns, without its covariance, checks and cross-validation
+    return calibrate_poses(dataset, CalibrationOptions(mode=mode, reference=reference,
+                                                       cross_validation_folds=0))
+
+
+class DrawTask(NamedTuple):
+    """One calibration of a study: configuration ``mode``/``reference`` on ``boards`` (sorted
+    indices), the lidar's detections moved by ``sigma_m`` times the standard normal noise of
+    ``noise_seed`` (none when ``sigma_m`` is 0). Everything it computes follows from these
+    fields: the same task gives the same numbers in any process, in any order."""
+
+    mode: str
+    reference: str | None
+    boards: tuple[int, ...]
+    sigma_m: float = 0.0
+    noise_seed: tuple[int, ...] | None = None
+
+
+#: what a task returns: None (the calibration refused the draw), or the RMSE [mm] per pair on
+#: all boards and on the held-out boards
+DrawResult = Optional[Tuple[Dict[str, float], Dict[str, float]]]
+
+
+def lidar_noise(dataset: Dataset, seed: Sequence[int]) -> np.ndarray:
+    """Standard normal noise of the shape of the (first) lidar's detections, from ``seed``
+    alone; Fig. 8 scales it by sigma (the same noise pattern for every sigma of a draw)."""
+    lidar = next(s for s in dataset.sensors if s.kind.value == "lidar")
+    return np.random.default_rng([int(x) for x in seed]).standard_normal(lidar.points.shape)
+
+
+def noisy_lidar(dataset: Dataset, sigma_m: float, seed: Sequence[int]) -> Dataset:
+    """``dataset`` with N(0, sigma_m^2 I_3) added to every 3D point of the lidar's detections
+    (paper Fig. 8); the other sensors are untouched."""
+    noise = sigma_m * lidar_noise(dataset, seed)
+    sensors = tuple(replace(s, points=s.points + noise) if s.kind.value == "lidar" else s
+                    for s in dataset.sensors)
+    return replace(dataset, sensors=sensors)
+
+
+def run_task(dataset: Dataset, task: DrawTask) -> DrawResult:
+    """Calibrate ``task`` on ``dataset``; RMSE on the noise-free detections of all boards and of
+    the held-out boards (see :class:`DrawTask`)."""
+    boards = np.asarray(task.boards, dtype=int)
+    data = dataset
+    if task.sigma_m > 0:
+        data = noisy_lidar(dataset, task.sigma_m, task.noise_seed or ())
+    try:
+        poses = _fit_poses(data.select_boards(boards), task.mode, task.reference)
+    except RigcalError:
+        return None
+    rest = np.setdiff1d(np.arange(dataset.num_boards), boards)
+    return _rmse_mm(dataset, poses, None), _rmse_mm(dataset, poses, rest)
+
+
+def run_tasks(dataset: Dataset, tasks: Sequence[DrawTask], runner=None,
+              progress: Callable[[int, int], None] | None = None) -> list[DrawResult]:
+    """Every task's result, in task order; identical tasks run once. ``runner``: a
+    :class:`rigcal.study.scale.Runner` (default: in this process)."""
+    unique = list(dict.fromkeys(tasks))
+    if runner is None:
+        from rigcal.study.scale import Runner
+
+        runner = Runner()
+    done = runner.map(run_task, unique, shared=dataset, progress=progress, name="prius-draw")
+    by_task = dict(zip(unique, done))
+    return [by_task[t] for t in tasks]
+
+
+def _rows_for(table: str, label: str, mode: str, reference: str | None, results: Sequence[DrawResult],
+              paper: Callable[[str], tuple[float | None, float | None, str | None]], k: int | None = None,
+              sigma_m: float | None = None) -> list[Row]:
+    all_b: dict[str, list[float]] = {}
+    held: dict[str, list[float]] = {}
+    failures = 0
+    for res in results:
+        if res is None:
+            failures += 1
+            continue
+        for pair, v in res[0].items():
+            all_b.setdefault(pair, []).append(v)
+        for pair, v in res[1].items():
+            held.setdefault(pair, []).append(v)
+    rows = []
+    for pair in sorted(all_b, key=lambda p: PAIR_NAMES.index(p) if p in PAIR_NAMES else 9):
+        med, mad = _median_mad(all_b[pair])
+        hmed, hmad = _median_mad(held.get(pair, []))
+        pm, ps, note = paper(pair)
+        rows.append(Row(table, label, mode, reference, pair, med, mad, hmed, hmad, pm, ps,
+                        len(results), failures, k, sigma_m, note))
+    return rows
+
+
+def _table_iii_paper(label: str):
+    values = dict(zip(PAIR_NAMES, PAPER_TABLE_III.get(label, ((None, None),) * 3)))
+    return lambda pair: (*values.get(pair, (None, None)), None)
+
+
+def table_iii_tasks(dataset: Dataset, draws: int = 200, k: int = 10, seed: int = 0):
+    """(configurations, board sets, tasks) of Table III."""
+    sets = draw_sets(dataset.num_boards, k, draws, seed)
+    configs = configurations(dataset)
+    tasks = [DrawTask(mode, ref, tuple(int(b) for b in boards)) for _, mode, ref in configs for boards in sets]
+    return configs, sets, tasks
 
 
 def table_iii(dataset: Dataset, draws: int = 200, k: int = 10, seed: int = 0,
-              progress: Callable[[int, int], None] | None = None) -> list[Row]:
+              progress: Callable[[int, int], None] | None = None, runner=None) -> list[Row]:
     """Table III on ``dataset``: see the module docstring."""
-    sets = draw_sets(dataset.num_boards, k, draws, seed)
-    configs = configurations(dataset)
-    total, done = len(configs) * len(sets), 0
+    configs, sets, tasks = table_iii_tasks(dataset, draws, k, seed)
+    results = run_tasks(dataset, tasks, runner, progress)
     rows = []
-    for label, mode, reference in configs:
-        all_b: dict[str, list[float]] = {}
-        held: dict[str, list[float]] = {}
-        failures = 0
-        for boards in sets:
-            try:
-                poses = _fit_poses(dataset.select_boards(boards), mode, reference)
-            except RigcalError:
-                failures += 1
-            else:
-                rest = np.setdiff1d(np.arange(dataset.num_boards), boards)
-                for pair, v in _rmse_mm(dataset, poses, None).items():
-                    all_b.setdefault(pair, []).append(v)
-                for pair, v in _rmse_mm(dataset, poses, rest).items():
-                    held.setdefault(pair, []).append(v)
-            done += 1
-            if progress:
-                progress(done, total)
-        paper = dict(zip(PAIR_NAMES, PAPER_TABLE_III.get(label, ((None, None),) * 3)))
-        for pair in sorted(all_b, key=lambda p: PAIR_NAMES.index(p) if p in PAIR_NAMES else 9):
-            med, mad = _median_mad(all_b[pair])
-            hmed, hmad = _median_mad(held.get(pair, []))
-            pm, ps = paper.get(pair, (None, None))
-            rows.append(Row("III", label, mode, reference, pair, med, mad, hmed, hmad, pm, ps,
-                            len(sets), failures))
+    for i, (label, mode, reference) in enumerate(configs):
+        part = results[i * len(sets):(i + 1) * len(sets)]
+        rows += _rows_for("III", label, mode, reference, part, _table_iii_paper(label))
     return rows
+
+
+# --------------------------------------------------------------------------------------------
+# Figs. 7 and 8 (lidar as MCPE reference, as the paper does "from now on")
+
+#: Fig. 7: the numbers of boards K (paper: "we vary K from 3 to 29 locations")
+FIG7_K = tuple(range(3, 30))
+#: Fig. 8: lidar noise std [m]. The paper's text gives no sigma values (its figure is not in the
+#: text we have): these are our choice, from none to 5 cm
+FIG8_SIGMA_M = (0.0, 0.005, 0.01, 0.02, 0.03, 0.04, 0.05)
+#: draws per K (Fig. 7) and per sigma (Fig. 8) in the paper
+FIGURE_DRAWS = 100
+
+
+def figure_configurations(dataset: Dataset) -> list[tuple[str, str, str | None]]:
+    """MCPE with the lidar as reference, PSE and FCPE (the paper's Figs. 7 and 8)."""
+    return [c for c in configurations(dataset) if c[0] in ("MCPE(lidar)", "PSE", "FCPE")]
+
+
+def _fig7_paper(label: str, k: int):
+    """What the paper says about Fig. 7 (its plot is not in the text; nothing is read off a
+    figure): at K = 10 it is Table III's experiment (200 sets there, 100 here); at K = 29 every
+    set is all boards, Table II's 15.3 mm lidar-camera; and two bounds from the text."""
+    def paper(pair: str):
+        pm = ps = None
+        notes = []
+        if k == 10:
+            pm, ps = dict(zip(PAIR_NAMES, PAPER_TABLE_III[label])).get(pair, (None, None))
+            notes.append("Table III (same experiment with 200 sets)")
+        if k == 29 and pair == PAIR_NAMES[0]:
+            pm, ps = 15.3, 0.0
+            notes.append("Table II (K = 29 is all boards)")
+        if label in ("PSE", "FCPE") and pair in PAIR_NAMES[:2] and k > 10:
+            notes.append("text: <= 20 mm for K > 10")
+        if label == "FCPE" and pair == PAIR_NAMES[1] and k == 29:
+            notes.append("text: < 15 mm with all 29 boards")
+        return pm, ps, ("; ".join(notes) or "not in the text (Fig. 7 is a plot)")
+    return paper
+
+
+def _fig8_paper(label: str, sigma_m: float):
+    """At sigma 0 Fig. 8 is Table III's experiment (10 boards; 200 sets there, 100 here);
+    elsewhere the paper's values are in its plot only."""
+    def paper(pair: str):
+        if sigma_m == 0:
+            pm, ps = dict(zip(PAIR_NAMES, PAPER_TABLE_III[label])).get(pair, (None, None))
+            return pm, ps, "Table III (sigma 0 is its experiment, 200 sets there)"
+        return None, None, "not in the text (Fig. 8 is a plot)"
+    return paper
+
+
+def fig7_tasks(dataset: Dataset, draws: int = FIGURE_DRAWS, seed: int = 0, ks: Sequence[int] = FIG7_K):
+    """[(K, configuration, tasks)] of Fig. 7; the sets of each K come from (seed, 7, K)."""
+    out = []
+    for k in ks:
+        if not 1 <= k <= dataset.num_boards:
+            raise ValueError(f"Fig. 7: K = {k} is not within 1..{dataset.num_boards} boards")
+        sets = draw_sets(dataset.num_boards, k, draws, (seed, 7, k))
+        for cfg in figure_configurations(dataset):
+            out.append((k, cfg, [DrawTask(cfg[1], cfg[2], tuple(int(b) for b in s)) for s in sets]))
+    return out
+
+
+def fig8_tasks(dataset: Dataset, draws: int = FIGURE_DRAWS, k: int = 10, seed: int = 0,
+               sigmas_m: Sequence[float] = FIG8_SIGMA_M):
+    """[(sigma, configuration, tasks)] of Fig. 8: the board sets are Table III's (same seed),
+    the noise of draw i comes from (seed, 8, i) - the same pattern scaled by each sigma."""
+    sets = draw_sets(dataset.num_boards, k, draws, seed)
+    out = []
+    for sigma in sigmas_m:
+        for cfg in figure_configurations(dataset):
+            tasks = [DrawTask(cfg[1], cfg[2], tuple(int(b) for b in s), float(sigma),
+                              (int(seed), 8, i) if sigma > 0 else None) for i, s in enumerate(sets)]
+            out.append((float(sigma), cfg, tasks))
+    return out
+
+
+def figure_rows(dataset: Dataset, figure: str, plan, runner=None,
+                progress: Callable[[int, int], None] | None = None) -> list[Row]:
+    """Run the tasks of ``plan`` (:func:`fig7_tasks` or :func:`fig8_tasks`) and give the rows of
+    ``figure`` (``"fig7"`` or ``"fig8"``)."""
+    flat = [t for _, _, tasks in plan for t in tasks]
+    results = run_tasks(dataset, flat, runner, progress)
+    rows, at = [], 0
+    for x, (label, mode, ref), tasks in plan:
+        part = results[at:at + len(tasks)]
+        at += len(tasks)
+        if figure == "fig7":
+            rows += _rows_for("fig7", label, mode, ref, part, _fig7_paper(label, x), k=int(x))
+        else:
+            rows += _rows_for("fig8", label, mode, ref, part, _fig8_paper(label, x), sigma_m=float(x))
+    return rows
+
+
+def fig7(dataset: Dataset, draws: int = FIGURE_DRAWS, seed: int = 0, ks: Sequence[int] = FIG7_K,
+         runner=None, progress: Callable[[int, int], None] | None = None) -> list[Row]:
+    """Fig. 7: median +- MAD of the RMSE over ``draws`` random sets of K boards, per K."""
+    return figure_rows(dataset, "fig7", fig7_tasks(dataset, draws, seed, ks), runner, progress)
+
+
+def fig8(dataset: Dataset, draws: int = FIGURE_DRAWS, k: int = 10, seed: int = 0,
+         sigmas_m: Sequence[float] = FIG8_SIGMA_M, runner=None,
+         progress: Callable[[int, int], None] | None = None) -> list[Row]:
+    """Fig. 8: median +- MAD of the RMSE (on the noise-free detections) over ``draws`` random
+    sets of ``k`` boards, per std of the noise added to the lidar's detections."""
+    return figure_rows(dataset, "fig8", fig8_tasks(dataset, draws, k, seed, sigmas_m), runner, progress)
 
 
 def table_ii(dataset: Dataset, progress: Callable[[int, int], None] | None = None) -> list[Row]:
@@ -205,7 +394,100 @@ def markdown(rows: Sequence[Row]) -> str:
                     f"{_fmt(r.paper_mm)} +- {_fmt(r.paper_spread_mm)} | {r.failures} |"
                 )
         out.append("")
+    for fig in ("fig7", "fig8"):
+        out += _figure_markdown(rows, fig)
     return "\n".join(out)
+
+
+_SHORT = {PAIR_NAMES[0]: "l2c", PAIR_NAMES[1]: "l2r", PAIR_NAMES[2]: "c2r"}
+
+
+def _figure_markdown(rows: Sequence[Row], fig: str) -> list[str]:
+    part = [r for r in rows if r.table == fig]
+    if not part:
+        return []
+    xname, xkey = ("K", "k") if fig == "fig7" else ("sigma [mm]", "sigma_m")
+    configs = list(dict.fromkeys(r.config for r in part))
+    pairs = [p for p in PAIR_NAMES if any(r.pair == p for r in part)]
+    cols = [(c, p) for c in configs for p in pairs]
+    cell = {(getattr(r, xkey), r.config, r.pair): r for r in part}
+    xs = sorted({getattr(r, xkey) for r in part})
+    title = ("Fig. 7: median +- MAD of the RMSE [mm] on all boards over %d random sets of K boards"
+             if fig == "fig7" else
+             "Fig. 8: median +- MAD of the RMSE [mm] on all (noise-free) boards over %d random sets "
+             "of 10 boards, N(0, sigma^2 I) added to the lidar's detections") % part[0].draws
+    out = [f"### {title}", "", f"Paper values in brackets where its text or tables give them; "
+           f"{fig}.png plots the same numbers.", "",
+           "| " + xname + " | " + " | ".join(f"{c} {_SHORT.get(p, p)}" for c, p in cols) + " |",
+           "| --- |" + " --- |" * len(cols)]
+    for x in xs:
+        cells = []
+        for c, p in cols:
+            r = cell.get((x, c, p))
+            if r is None:
+                cells.append("-")
+                continue
+            text = f"{_fmt(r.median_mm)} +- {_fmt(r.mad_mm)}"
+            if r.paper_mm is not None:
+                text += f" ({_fmt(r.paper_mm)})"
+            if r.failures:
+                text += f" [{r.failures} refused]"
+            cells.append(text)
+        label = str(x) if fig == "fig7" else f"{1000 * x:g}"
+        out.append(f"| {label} | " + " | ".join(cells) + " |")
+    notes = list(dict.fromkeys(n for r in part for n in (r.paper_note or "").split("; ")
+                               if n and not n.startswith("not in")))
+    out += ["", "Paper: " + "; ".join(notes) + "; all other values are only in the paper's plot."
+            if notes else "Paper: values only in its plot.", ""]
+    return out
+
+
+def plot_figures(rows: Sequence[Row], folder) -> list:
+    """Write ``fig7.png`` / ``fig8.png`` (for the figures ``rows`` hold) into ``folder``: one
+    panel per pair, median with the MAD as a band per configuration, the paper's values as
+    black marks where its text gives them. Returns the paths written."""
+    from pathlib import Path
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    written = []
+    for fig in ("fig7", "fig8"):
+        part = [r for r in rows if r.table == fig]
+        if not part:
+            continue
+        xkey = "k" if fig == "fig7" else "sigma_m"
+        scale = 1.0 if fig == "fig7" else 1000.0
+        pairs = [p for p in PAIR_NAMES if any(r.pair == p for r in part)]
+        f, axes = plt.subplots(1, len(pairs), figsize=(4.2 * len(pairs), 3.6), sharey=False, squeeze=False)
+        for ax, pair in zip(axes[0], pairs):
+            for config in dict.fromkeys(r.config for r in part):
+                rs = sorted((r for r in part if r.pair == pair and r.config == config), key=lambda r: getattr(r, xkey))
+                x = np.array([scale * getattr(r, xkey) for r in rs])
+                m = np.array([r.median_mm for r in rs], dtype=float)
+                d = np.array([r.mad_mm for r in rs], dtype=float)
+                (line,) = ax.plot(x, m, marker=".", label=config)
+                ax.fill_between(x, m - d, m + d, color=line.get_color(), alpha=0.2)
+                px = [scale * getattr(r, xkey) for r in rs if r.paper_mm is not None]
+                py = [r.paper_mm for r in rs if r.paper_mm is not None]
+                if px:
+                    ax.plot(px, py, "x", color=line.get_color(), markersize=9, markeredgewidth=2)
+            ax.set_title(f"{_SHORT.get(pair, pair)} ({pair})")
+            ax.set_xlabel("boards K" if fig == "fig7" else "lidar noise sigma [mm]")
+            ax.set_ylabel("RMSE [mm], median +- MAD")
+            ax.grid(alpha=0.3)
+        axes[0][0].plot([], [], "kx", label="paper (its text / tables)")
+        axes[0][0].legend(fontsize=8)
+        f.suptitle(("Fig. 7: RMSE vs number of boards" if fig == "fig7" else
+                    "Fig. 8: RMSE vs noise on the lidar") + f" ({part[0].draws} sets each)")
+        f.tight_layout()
+        path = Path(folder) / f"{fig}.png"
+        f.savefig(path, dpi=110)
+        plt.close(f)
+        written.append(path)
+    return written
 
 
 def study_json(rows: Sequence[Row], meta: dict) -> str:
@@ -213,5 +495,11 @@ def study_json(rows: Sequence[Row], meta: dict) -> str:
     def clean(v):
         return None if isinstance(v, float) and not math.isfinite(v) else v
 
-    return json.dumps({"meta": meta, "rows": [{k: clean(v) for k, v in asdict(r).items()} for r in rows]},
-                      indent=1)
+    def row(r: Row) -> dict:
+        d = {k: clean(v) for k, v in asdict(r).items()}
+        for extra in ("k", "sigma_m"):  # Fig. 7's K, Fig. 8's sigma: only in their rows
+            if d[extra] is None:
+                del d[extra]
+        return d
+
+    return json.dumps({"meta": meta, "rows": [row(r) for r in rows]}, indent=1)

@@ -1,0 +1,134 @@
+"""Independent tasks (a study's draws, a fleet's datasets) mapped in-process or over Dask.
+
+:func:`task_runner` is a context manager that yields a :class:`Runner`; its
+:meth:`Runner.map` calls ``fn(shared, item)`` for every item and returns the results **in item
+order**, whatever order they finish in, so a run gives the same numbers serially and on a
+cluster as long as ``fn`` depends only on its arguments (every study seeds its draws from the
+study's seed and the draw's index, never from a shared random stream).
+
+Schedulers (the ``--scheduler`` option of ``rigcal study`` and ``rigcal calibrate --batch``):
+
+* ``serial``: in this process, one task after the other;
+* ``local`` (the default): a :class:`distributed.LocalCluster` started for the run - one
+  single-threaded worker process per core, no dashboard, its logs silenced - and closed after
+  it (also on Ctrl-C);
+* anything else is the address of a running Dask scheduler (``tcp://host:8786``): the tasks run
+  there, the cluster is left running. Its workers must be able to import rigcal.
+
+``shared`` (e.g. the dataset) is sent to the workers once (``scatter``), not with every task.
+dask and distributed are imported only when a cluster is used.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from contextlib import contextmanager
+from dataclasses import dataclass
+from typing import Any, Callable, Iterator, Sequence
+
+from rigcal.errors import InputError
+
+SERIAL = "serial"
+LOCAL = "local"
+#: no dashboard, and the scheduler's small HTTP server (health, metrics) on a free local port
+#: instead of 8787, which another cluster on the machine may hold
+NO_HTTP_PORT = {"dashboard": False, "dashboard_address": "127.0.0.1:0"}
+
+Progress = Callable[[int, int], None]
+
+
+@dataclass
+class Runner:
+    """Maps tasks over ``client`` (a :class:`distributed.Client`) or, when it is None, in this
+    process. ``description`` says where (for logs and study.json)."""
+
+    client: Any = None
+    description: str = SERIAL
+
+    @property
+    def workers(self) -> int:
+        if self.client is None:
+            return 1
+        return max(1, len(self.client.scheduler_info().get("workers", {})))
+
+    def map(self, fn: Callable[[Any, Any], Any], items: Sequence[Any], shared: Any = None,
+            progress: Progress | None = None, name: str = "task") -> list[Any]:
+        """``[fn(shared, item) for item in items]``, in item order. An exception raised by a
+        task is raised here (the remaining tasks are cancelled)."""
+        items = list(items)
+        total = len(items)
+        if progress:
+            progress(0, total)
+        if self.client is None:
+            out = []
+            for i, item in enumerate(items):
+                out.append(fn(shared, item))
+                if progress:
+                    progress(i + 1, total)
+            return out
+        if not items:
+            return []
+        from distributed import as_completed
+
+        remote = self.client.scatter(shared, broadcast=True, hash=False) if shared is not None else None
+        futures = self.client.map(fn, [remote] * total, items, pure=False,
+                                  key=[f"{name}-{os.getpid()}-{id(items)}-{i}" for i in range(total)])
+        index = {f.key: i for i, f in enumerate(futures)}
+        out: list[Any] = [None] * total
+        done = 0
+        try:
+            for fut in as_completed(futures):
+                out[index[fut.key]] = fut.result()
+                done += 1
+                if progress:
+                    progress(done, total)
+        finally:
+            if done < total:
+                self.client.cancel(futures)
+        return out
+
+
+@contextmanager
+def task_runner(scheduler: str | None = LOCAL, workers: int | None = None,
+                tasks: int | None = None) -> Iterator[Runner]:
+    """A :class:`Runner` for ``scheduler`` (see the module docstring); ``workers``: processes
+    of the local cluster (default: the number of cores). ``tasks``: how many tasks will run, if
+    known - a local cluster is not started for a single task. The cluster and client are closed
+    on exit, also when the block is interrupted."""
+    scheduler = (scheduler or LOCAL).strip()
+    if scheduler == SERIAL or (scheduler == LOCAL and tasks is not None and tasks <= 1):
+        yield Runner()
+        return
+    try:
+        from distributed import Client, LocalCluster
+    except ImportError as exc:  # pragma: no cover - declared dependency
+        raise InputError(f"--scheduler {scheduler}: dask.distributed is not installed ({exc})") from None
+    cluster = client = None
+    # distributed logs its scheduler's and workers' comings and goings at INFO in this process
+    quiet = {name: logging.getLogger(name) for name in ("distributed", "bokeh", "tornado")}
+    levels = {name: lg.level for name, lg in quiet.items()}
+    for lg in quiet.values():
+        lg.setLevel(logging.ERROR)
+    try:
+        if scheduler == LOCAL:
+            n = workers or os.cpu_count() or 1
+            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                                   dashboard_address=None, silence_logs=logging.ERROR,
+                                   scheduler_kwargs=NO_HTTP_PORT)
+            client = Client(cluster)
+            where = f"Dask LocalCluster, {n} worker process{'es' if n > 1 else ''}"
+        else:
+            try:
+                client = Client(scheduler, timeout="10s")
+            except (OSError, TimeoutError, ValueError) as exc:
+                raise InputError(f"--scheduler {scheduler}: cannot connect to a Dask scheduler there ({exc})") from None
+            where = f"Dask scheduler {scheduler}"
+        yield Runner(client, where)
+    finally:
+        if client is not None:
+            client.close()
+        if cluster is not None:
+            cluster.close()
+        for name, lg in quiet.items():
+            lg.setLevel(levels[name])

@@ -299,8 +299,8 @@ def test_mocap_cli_a_non_unit_quaternion_in_a_bag_pose_stream_is_one_line(scene,
 def test_study_mocap_out_writes_markdown_json_and_plot(tmp_path, capsys):
     out = tmp_path / "mocap"
     assert run(["study", "mocap", "--trials", "1", "--measurements", "5", "--out", str(out)]) == 0
-    assert sorted(p.name for p in out.iterdir() if not p.name.startswith(".")) == ["mocap.png", "study.json",
-                                                                                   "study.md"]
+    assert sorted(p.name for p in out.iterdir() if not p.name.startswith(".")) == ["mocap.png", "study.html",
+                                                                                   "study.json", "study.md"]
     doc = json.loads((out / "study.json").read_text())
     assert doc["meta"]["trials"] == 1 and doc["meta"]["scheduler"] == "serial"  # 1 trial: no cluster
     rows = {r["metric"]: r for r in doc["rows"]}

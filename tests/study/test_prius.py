@@ -63,6 +63,8 @@ def test_cli_writes_study_md_and_json(prius, tmp_path, capsys):
     data = json.loads((out / "study.json").read_text())
     assert data["meta"]["draws"] == 1 and len(data["rows"]) == 15
     assert "Table III" in (out / "study.md").read_text() and "Table III" in capsys.readouterr().out
+    page = (out / "study.html").read_text()  # the study's page: every row in a table, Table III drawn
+    assert page.count("<tr>") >= len(data["rows"]) and 'id="fig-table-iii"' in page
 
 
 def test_fig7_rows_are_well_formed_with_the_papers_values(prius, tmp_path):

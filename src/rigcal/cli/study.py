@@ -193,11 +193,17 @@ def run_prius(args, console) -> int:
             "scheduler": where, "wall_time_s": seconds}
     text, data = prius.markdown(rows), prius.study_json(rows, meta)
     if args.out:
+        import json
+
+        from rigcal.report.study_page import render_study
+
         with staged_folder(args.out) as stage:
             figures = prius.plot_figures(rows, stage)
             links = "".join(f"\n![{p.stem}]({p.name})\n" for p in figures)
             (stage / "study.md").write_text(text + links)
             (stage / "study.json").write_text(data + "\n")
+            (stage / "study.html").write_text(render_study(
+                json.loads(data), "study.json", "Domhof et al. on the Prius data: Tables II/III, Figs. 7/8"))
     sys.stdout.write((data if args.json else text) + "\n")
     return 0
 

@@ -152,7 +152,7 @@ def study_figures(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
     return [f for f in figs if f is not None]
 
 
-def render_study(study: Mapping[str, Any], source: str = "study.json") -> str:
+def render_study(study: Mapping[str, Any], source: str = "study.json", title: str | None = None) -> str:
     """The HTML text of ``study.html`` for a study's JSON. Malformed JSON raises InputError
     naming ``source``."""
     import jinja2
@@ -167,7 +167,7 @@ def render_study(study: Mapping[str, Any], source: str = "study.json") -> str:
     meta = study.get("meta", {})
     try:
         return _template(TEMPLATE).render(
-            title=str(meta.get("study") or meta.get("name") or "rigcal study"),
+            title=title or str(meta.get("study") or meta.get("name") or "rigcal study"),
             version=__version__,
             meta=[(str(k), _cell(str(k), v)) for k, v in meta.items() if not isinstance(v, (list, dict))],
             tables=tables(rows),

@@ -818,10 +818,15 @@ def run(args: argparse.Namespace, progress=None) -> tuple[str, int]:
 
             from rigcal.io.atomic import staged_folder
 
+            from rigcal.report.study_page import render_study
+
+            document = study_document(table, where)
             with staged_folder(out) as stage:
                 table.plot(stage / "mocap.png")
                 (stage / "study.md").write_text(table.markdown() + "\n![mocap](mocap.png)\n")
-                (stage / "study.json").write_text(json.dumps(study_document(table, where), indent=1) + "\n")
+                (stage / "study.json").write_text(json.dumps(document, indent=1) + "\n")
+                (stage / "study.html").write_text(render_study(
+                    json.loads(json.dumps(document)), "study.json", "Motion-capture calibration study"))
     except RigcalError as exc:
         return f"rigcal: error: {exc}", 1
     if getattr(args, "json", False):

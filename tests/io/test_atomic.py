@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from pathlib import Path
 import stat
 
 import pytest
@@ -157,3 +158,22 @@ def test_staged_folder_accepts_an_empty_folder(tmp_path):
     with staged_folder(out) as stage:
         (stage / "a").write_text("a")
     assert (out / "a").read_text() == "a"
+
+
+def test_a_stage_is_synced_once_not_after_every_file(tmp_path, monkeypatch):
+    """Files written into a staged folder skip the per-file directory sync; the stage is synced
+    once before it is published, then its parent; a file written elsewhere still syncs its own
+    folder."""
+    import rigcal.io.atomic as atomic
+
+    synced = []
+    monkeypatch.setattr(atomic, "_fsync_directory", lambda d: synced.append(Path(d).name))
+    with atomic.staged_folder(tmp_path / "out") as stage:
+        for k in range(5):
+            atomic.atomic_write_text(stage / f"f{k}.txt", "x")
+        assert synced == []
+    assert synced[0].startswith(".out.") and synced[0].endswith(".partial")
+    assert synced[1:] == [tmp_path.name] and (tmp_path / "out" / "f4.txt").is_file()
+    synced.clear()
+    atomic.atomic_write_text(tmp_path / "alone.txt", "y")
+    assert synced == [tmp_path.name]

@@ -16,6 +16,7 @@ import stat
 import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
+from contextvars import ContextVar
 from pathlib import Path
 
 from rigcal.errors import InputError
@@ -79,7 +80,8 @@ def atomic_write_bytes(path: str | os.PathLike[str],
         if isinstance(exc, OSError):
             raise InputError(f"{target}: cannot write file: {exc.strerror or exc}") from exc
         raise
-    _fsync_directory(target.parent)
+    if target.parent.absolute() not in _STAGES.get():
+        _fsync_directory(target.parent)  # (a stage is synced once, before it is published)
     return target
 
 
@@ -90,6 +92,11 @@ def atomic_write_text(path: str | os.PathLike[str], text: str) -> Path:
     if not isinstance(text, str):
         raise TypeError(f"atomic_write_text: text must be str, got {type(text).__name__}")
     return atomic_write_bytes(path, text.encode("utf-8"))
+
+
+#: the staged folders being written in this context: their files' renames need no directory
+#: sync each, the whole stage is synced once before it is published
+_STAGES: ContextVar[frozenset[Path]] = ContextVar("rigcal_stages", default=frozenset())
 
 
 def _fsync_directory(directory: Path) -> None:
@@ -203,14 +210,17 @@ def staged_folder(path: str | os.PathLike[str]) -> Iterator[Path]:
         stage.mkdir()
     except OSError as exc:
         raise InputError(f"{target}: cannot create output folder: {exc.strerror or exc}") from None
+    token = _STAGES.set(_STAGES.get() | {stage.absolute()})
     try:
         yield stage
         mark_output(stage)
         _fsync_directory(stage)
         _publish(stage, target)
     except BaseException as exc:
+        _STAGES.reset(token)
         shutil.rmtree(stage, ignore_errors=True)
         if isinstance(exc, OSError):
             raise InputError(f"{target}: cannot write output folder: {exc.strerror or exc}") from exc
         raise
+    _STAGES.reset(token)
     _fsync_directory(target.parent)

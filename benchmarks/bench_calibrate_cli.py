@@ -16,7 +16,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from timing import process_wall_times
+from timing import compile_bytecode, process_wall_times
 
 MANIFEST = Path(__file__).resolve().parents[1] / "examples" / "prius" / "rig.yaml"
 
@@ -34,6 +34,7 @@ def main() -> int:
     if not (MANIFEST.parent.parents[2] / "shared" / "data").is_dir():
         print("../shared/data not found beside the repository")
         return 1
+    compile_bytecode()
     print(f"python {platform.python_version()}, {os.cpu_count()} cpu(s), {platform.processor() or platform.machine()}")
     print(f"{'rigcal calibrate (29 boards)':<36} {'min':>6} {'median':>6} {'max':>6}  (s, {args.runs} runs)")
     for mode in ("fcpe", "mcpe", "pse"):

@@ -15,7 +15,7 @@ import platform
 import statistics
 import sys
 
-from timing import process_wall_times
+from timing import compile_bytecode, process_wall_times
 
 COMMANDS = (["--version"], ["--help"], ["calibrate", "--help"])
 
@@ -28,6 +28,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=10)
     args = ap.parse_args()
+    compile_bytecode()
     print(f"python {platform.python_version()}, {os.cpu_count()} cpu(s), {platform.processor() or platform.machine()}")
     print(f"{'command':<26} {'min':>7} {'median':>7} {'max':>7}  (s, {args.runs} runs)")
     for argv in COMMANDS:

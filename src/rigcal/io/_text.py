@@ -116,6 +116,17 @@ def dump_yaml(data: Any, flow: bool | None = False) -> str:
     )
 
 
+def json_safe(value: Any) -> Any:
+    """``value`` with NaN and infinities as None (strict JSON), mapping keys as strings."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {str(k): json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_safe(v) for v in value]
+    return value
+
+
 def read_text(path: str | os.PathLike[str], what: str = "file") -> str:
     """The UTF-8 text of ``path``; a missing, unreadable, binary, oversized or non-regular file
     (directory, FIFO, device) raises InputError. See :mod:`rigcal.io.limits`."""

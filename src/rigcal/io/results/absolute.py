@@ -17,7 +17,6 @@ Every write is atomic; every text is built before anything is written.
 from __future__ import annotations
 
 import json
-import math
 import os
 from pathlib import Path
 from typing import Any, Callable, Mapping, NamedTuple, Sequence
@@ -26,7 +25,7 @@ import numpy as np
 
 from rigcal.absolute.result import AbsoluteResult
 from rigcal.errors import InputError
-from rigcal.io._text import dump_yaml, load_yaml, read_text, type_name
+from rigcal.io._text import dump_yaml, json_safe, load_yaml, read_text, type_name
 from rigcal.io.atomic import atomic_write_text, mark_output
 from rigcal.io.results.tf_export import (
     ros1_launch_text,
@@ -137,16 +136,6 @@ def absolute_to_yaml_text(result: AbsoluteResult, parent_frame: str | None = Non
     return _dump_yaml(res.to_dict())
 
 
-def _json_safe(value: Any) -> Any:
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    if isinstance(value, dict):
-        return {str(k): _json_safe(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_json_safe(v) for v in value]
-    return value
-
-
 def absolute_to_json_text(result: AbsoluteResult, parent_frame: str | None = None) -> str:
     """The same document as :func:`absolute_to_yaml_text` as strict, indented JSON (NaN and
     infinities become ``null``, integer keys strings)."""
@@ -154,7 +143,7 @@ def absolute_to_json_text(result: AbsoluteResult, parent_frame: str | None = Non
         raise InputError(f"expected an AbsoluteResult, got {type(result).__name__}")
     res = _renamed(result, parent_frame)
     body_transforms(res)
-    return json.dumps(_json_safe(res.to_dict()), indent=2, allow_nan=False) + "\n"
+    return json.dumps(json_safe(res.to_dict()), indent=2, allow_nan=False) + "\n"
 
 
 def parse_absolute_yaml(text: str, source: str = ABSOLUTE_YAML_NAME) -> AbsoluteTransforms:

@@ -12,7 +12,6 @@
 from __future__ import annotations
 
 import json
-import math
 import os
 import re
 from pathlib import Path
@@ -22,7 +21,7 @@ import numpy as np
 
 from rigcal.errors import InputError
 from rigcal.geometry.se3 import invert
-from rigcal.io._text import dump_yaml
+from rigcal.io._text import dump_yaml, json_safe
 from rigcal.io.atomic import atomic_write_text, mark_output
 from rigcal.io.dataset.manifest import check_sensor_name
 from rigcal.problem.result import CalibrationResult
@@ -42,20 +41,10 @@ def result_to_yaml_text(result: CalibrationResult) -> str:
     return _dump_yaml(result.to_dict())
 
 
-def _json_safe(value: Any) -> Any:
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    if isinstance(value, dict):
-        return {k: _json_safe(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_json_safe(v) for v in value]
-    return value
-
-
 def result_to_json_text(result: CalibrationResult) -> str:
     """``result.to_dict()`` as strict JSON (indented); NaN and infinities become ``null``,
     integer dictionary keys (board indices) become strings."""
-    return json.dumps(_json_safe(result.to_dict()), indent=2, allow_nan=False) + "\n"
+    return json.dumps(json_safe(result.to_dict()), indent=2, allow_nan=False) + "\n"
 
 
 def _sensor(result: CalibrationResult, name: str) -> Any:

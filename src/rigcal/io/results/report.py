@@ -9,31 +9,21 @@ existed - the result file (``absolute.yaml`` or ``calibration.yaml``) alone.
 from __future__ import annotations
 
 import json
-import math
 import os
 from pathlib import Path
 from typing import Any, Mapping
 
 from rigcal.errors import InputError
+from rigcal.io._text import json_safe
 from rigcal.io.atomic import atomic_write_text
 
 REPORT_JSON_NAME = "report.json"
 REPORT_HTML_NAME = "report.html"
 
 
-def _json_safe(value: Any) -> Any:
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    if isinstance(value, dict):
-        return {str(k): _json_safe(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_json_safe(v) for v in value]
-    return value
-
-
 def report_json_text(data: Mapping[str, Any]) -> str:
     """Strict, compact JSON of the report data (NaN and infinities as null)."""
-    return json.dumps(_json_safe(dict(data)), separators=(",", ":"), allow_nan=False) + "\n"
+    return json.dumps(json_safe(dict(data)), separators=(",", ":"), allow_nan=False) + "\n"
 
 
 def write_report(data: Mapping[str, Any], out_dir: str | os.PathLike[str],

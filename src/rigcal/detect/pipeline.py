@@ -80,7 +80,7 @@ def build_detector(setup: SensorSetup, rig: DetectionRig, recording: RecordingLi
     if setup.input == "mono":
         from rigcal.detect.mono import MonoDetectorConfig, detect_board_mono
 
-        camera = _camera_model(setup, rig, recording)
+        camera = camera_model(setup, rig, recording)
         cfg = _config(MonoDetectorConfig, setup.detector, where)
         return lambda f: detect_board_mono(f, camera, board, cfg)
     from rigcal.detect.stereo import StereoDetectorConfig, detect_board_stereo
@@ -109,7 +109,9 @@ def build_detector(setup: SensorSetup, rig: DetectionRig, recording: RecordingLi
     return detect_pair
 
 
-def _camera_model(setup: SensorSetup, rig: DetectionRig, recording: RecordingLike | None):
+def camera_model(setup: SensorSetup, rig: DetectionRig, recording: RecordingLike | None):
+    """The camera model of a detection rig's camera: from its intrinsics file, else from the
+    recording's CameraInfo (the detector and the report's raw overlays use the same one)."""
     if setup.intrinsics is not None:
         from rigcal.io.config.intrinsics import read_intrinsics
 

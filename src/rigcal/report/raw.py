@@ -103,7 +103,7 @@ def raw_overlays(recording: Any, rig: Any, placements: Iterable[Any], dataset: D
     image (:func:`lidar_on_image`) as report entries ``{camera, lidar, board, t_s, jpeg_base64}``.
     A camera without a usable model, or a placement without a frame of both, is skipped (logged)."""
     # the detection pipeline's own camera model of a rig sensor (intrinsics file or CameraInfo)
-    from rigcal.detect.pipeline import _camera_model as camera_model_of
+    from rigcal.detect.pipeline import camera_model as camera_model_of
     from rigcal.sensors.camera.pinhole import PinholeCamera
 
     placements = list(placements)

@@ -1,9 +1,11 @@
-"""rigcal.demo.absolute_demo: the absolute-calibration demo writes a complete scene, runs the
-`rigcal absolute` path on it and lands near the simulated truth; its URDF reproduces it."""
+"""rigcal.demo: the absolute-calibration demo writes a complete scene, runs the `rigcal absolute`
+path on it and lands near the simulated truth (its URDF reproduces it); the raw demo's reports
+show the lidar on the camera images."""
 
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from rigcal.demo import absolute_demo
 from rigcal.io.results.calibration_files import read_calibration_transforms
@@ -26,3 +28,22 @@ def test_absolute_demo(tmp_path):
     urdf = parse_urdf(report.urdf_path.read_text(), "out")
     for frame, T in cal.transforms.items():
         assert np.abs(forward_kinematics(urdf, "base_link", frame) - T).max() < 1e-6
+
+
+@pytest.mark.slow  # ~40 s: renders, writes and detects a raw bag
+def test_raw_demo_reports_show_the_lidar_on_the_images(tmp_path):
+    """The raw demo calibrates while its bag still exists, so each mode's report.html carries
+    the lidar-on-camera overlays of raw data (the bag is deleted afterwards)."""
+    import json
+
+    from rigcal.demo import raw_demo
+
+    report = raw_demo(tmp_path / "demo", seed=3, boards=4)
+    assert {o.mode for o in report.outcomes} == {"mcpe", "fcpe", "pse"}
+    for mode in ("mcpe", "fcpe", "pse"):
+        data = json.loads((tmp_path / "demo" / mode / "report.json").read_text())
+        images = data["raw"]["images"]
+        assert images and all(img["camera"] == "camera1" and img["jpeg_base64"] for img in images), mode
+        html = (tmp_path / "demo" / mode / "report.html").read_text()
+        assert '<section id="raw">' in html and html.count("data:image/jpeg;base64,") == len(images)
+    assert not list((tmp_path / "demo").glob("*.bag"))  # deleted after detection and calibration

@@ -48,17 +48,24 @@ class DemoReport:
     notes: tuple[str, ...] = ()
 
 
-def _calibrate_all(dataset, truth, out: Path, modes=("mcpe", "fcpe", "pse")) -> tuple[ModeOutcome, ...]:
+def _calibrate_all(dataset, truth, out: Path, modes=("mcpe", "fcpe", "pse"),
+                   raw_images=None) -> tuple[ModeOutcome, ...]:
+    """Calibrate with every mode and write each result set; ``raw_images(result)``, when given,
+    returns the report's lidar-on-image overlays from the recording."""
     from rigcal.io.results.calibration import write_results
     from rigcal.io.results.report import write_report
     from rigcal.report.data import calibration_report
     from rigcal.report.plot import plot_calibration
+    from rigcal.report.raw import with_raw
 
     outcomes = []
     for mode in modes:
         result = calibrate(dataset, CalibrationOptions(mode=mode, cross_validation_folds=5))
         write_results(result, out / mode)
-        write_report(calibration_report(result, dataset), out / mode)
+        report = calibration_report(result, dataset)
+        if raw_images is not None:
+            report = with_raw(report, raw_images(result))
+        write_report(report, out / mode)
         plot_calibration(dataset, result, out / mode / "calibration.png")
         outcomes.append(ModeOutcome(mode, result, errors_against_truth(result, truth)))
     return tuple(outcomes)
@@ -209,6 +216,7 @@ def raw_demo(
     _check_boards(boards)
     from rigcal.detect.pipeline import run_detection
     from rigcal.io.recordings.bag import write_recording
+    from rigcal.report.raw import raw_overlays
     from rigcal.io.recordings.open_any import open_any
     from rigcal.io.dataset.manifest import write_dataset
     from rigcal.io.config.rig_config import parse_rig_config
@@ -235,9 +243,11 @@ def raw_demo(
             run = run_detection(
                 recording, rig, progress=(lambda d, t: progress("detecting", d, t)) if progress else None
             )
+            write_dataset(run.dataset, out / "dataset")
+            # calibrated while the bag is still there: each report shows the lidar on the images
+            outcomes = _calibrate_all(run.dataset, rec.truth, out, raw_images=lambda result: raw_overlays(
+                recording, rig, run.placements, run.dataset, result))
         bag_mb = _size_bytes(bag) / 1e6
-    write_dataset(run.dataset, out / "dataset")
-    outcomes = _calibrate_all(run.dataset, rec.truth, out)
     det_err = detection_errors(run, rec)
     notes = [
         f"{len(run.placements)} board placements found automatically ({boards} simulated)",

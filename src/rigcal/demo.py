@@ -52,20 +52,13 @@ def _calibrate_all(dataset, truth, out: Path, modes=("mcpe", "fcpe", "pse"),
                    raw_images=None) -> tuple[ModeOutcome, ...]:
     """Calibrate with every mode and write each result set; ``raw_images(result)``, when given,
     returns the report's lidar-on-image overlays from the recording."""
-    from rigcal.io.results.calibration import write_results
-    from rigcal.io.results.report import write_report
-    from rigcal.report.data import calibration_report
+    from rigcal.io.results.report import write_calibration_set
     from rigcal.report.plot import plot_calibration
-    from rigcal.report.raw import with_raw
 
     outcomes = []
     for mode in modes:
         result = calibrate(dataset, CalibrationOptions(mode=mode, cross_validation_folds=5))
-        write_results(result, out / mode)
-        report = calibration_report(result, dataset)
-        if raw_images is not None:
-            report = with_raw(report, raw_images(result))
-        write_report(report, out / mode)
+        write_calibration_set(result, dataset, out / mode, raw_images(result) if raw_images else None)
         plot_calibration(dataset, result, out / mode / "calibration.png")
         outcomes.append(ModeOutcome(mode, result, errors_against_truth(result, truth)))
     return tuple(outcomes)

@@ -56,9 +56,8 @@ def run_batch(args, console) -> int:
     from rigcal.cli.output import progress_bar, table
     from rigcal.io.atomic import staged_folder
     from rigcal.io.dataset.manifest import load_manifest
-    from rigcal.io.results.calibration import result_to_json_text, write_results
-    from rigcal.io.results.report import write_report
-    from rigcal.report.data import calibration_report
+    from rigcal.io.results.calibration import result_to_json_text
+    from rigcal.io.results.report import write_calibration_set
     from rigcal.study.scale import task_runner
 
     if args.manifest or args.rig or args.lidar or args.camera or args.radar or args.radar3d or args.ignore:
@@ -92,8 +91,7 @@ def run_batch(args, console) -> int:
             continue
         try:
             with staged_folder(out / name) as stage:
-                write_results(o.result, stage)
-                write_report(calibration_report(o.result, datasets[name]), stage)
+                write_calibration_set(o.result, datasets[name], stage)
         except RigcalError as exc:
             outcomes[name] = Outcome(name, None, str(exc))
             status[name] = "failed"

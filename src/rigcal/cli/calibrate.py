@@ -115,11 +115,9 @@ def run(args, console) -> int:
     from rigcal.io.atomic import staged_folder
     from rigcal.io.dataset.ignore import read_ignore_file
     from rigcal.io.dataset.manifest import dataset_from_files, load_manifest
-    from rigcal.io.results.calibration import result_to_json_text, write_results
-    from rigcal.io.results.report import write_report
+    from rigcal.io.results.calibration import result_to_json_text
+    from rigcal.io.results.report import write_calibration_set
     from rigcal.problem.calibrate import calibrate
-    from rigcal.report.data import calibration_report
-    from rigcal.report.raw import with_raw
 
     files = args.lidar or args.camera or args.radar or args.radar3d
     if args.manifest and files:
@@ -144,12 +142,10 @@ def run(args, console) -> int:
     if result.flagged and not args.force:
         summary(result, console)
         return not_written(console)
-    report = calibration_report(result, dataset)
-    if detection is not None:  # raw data: the lidar scans on the camera images
-        report = with_raw(report, raw_images(args.manifest, args.rig, detection, result))
+    # raw data: the lidar scans on the camera images, for the report
+    raw = raw_images(args.manifest, args.rig, detection, result) if detection is not None else None
     with staged_folder(args.out) as stage:
-        write_results(result, stage)
-        write_report(report, stage)
+        write_calibration_set(result, dataset, stage, raw)
         if args.plot:
             from rigcal.report.plot import plot_calibration
 

@@ -219,24 +219,32 @@ def detect_board_stereo(
     return fail(failures[0].reason, failures[0].detail)
 
 
+def _usable(pts: np.ndarray, cfg: StereoDetectorConfig) -> tuple[np.ndarray, np.ndarray, bool]:
+    """(usable mask, points with NaN rows zeroed, whether an ROI box applies): finite points
+    within the range limits and the ROI box."""
+    lo, hi = check_box(cfg.roi_min_xyz, cfg.roi_max_xyz, "stereo detector")
+    finite = np.isfinite(pts).all(axis=1)
+    safe = np.where(finite[:, None], pts, 0.0)
+    r = np.linalg.norm(safe, axis=1)
+    usable = finite & (r >= cfg.min_range_m) & (r <= cfg.max_range_m)
+    if lo is not None:
+        usable &= box_mask(pts, lo, hi)
+    return usable, safe, lo is not None
+
+
 def _segment(frame: PointCloudFrame, board: BoardGeometry, cfg: StereoDetectorConfig):
     """Steps 1-2 of the module docstring: (points, usable mask, indices of the segmented
     points, board candidates over them, up axis, rng), or the StepFailed that stops there."""
     pts = frame.points_xyz
     n_all = pts.shape[0]
-    lo, hi = check_box(cfg.roi_min_xyz, cfg.roi_max_xyz, "stereo detector")
     up = check_axis(cfg.up_axis, "up_axis", "stereo detector")
-    finite = np.isfinite(pts).all(axis=1)
-    r = np.linalg.norm(np.where(finite[:, None], pts, 0.0), axis=1)
-    usable = finite & (r >= cfg.min_range_m) & (r <= cfg.max_range_m)
-    if lo is not None:
-        usable &= box_mask(pts, lo, hi)
+    usable, _, roi = _usable(pts, cfg)
     n_use = int(usable.sum())
     if n_use < cfg.min_board_points:
         return StepFailed(
             "no_points_in_roi",
             f"{n_use} of {n_all} points are finite, within {cfg.min_range_m}-{cfg.max_range_m} m"
-            + (" and in the ROI" if lo is not None else "") + f"; need {cfg.min_board_points}",
+            + (" and in the ROI" if roi else "") + f"; need {cfg.min_board_points}",
         )
     rng = np.random.default_rng(cfg.seed)
     organised = frame.organized_shape is not None
@@ -459,14 +467,8 @@ def _detect_seeded(frame: PointCloudFrame, cand: BoardSegment, board: BoardGeome
     pts = frame.points_xyz
     if frame.organized_shape is None or pts.shape[0] == 0:
         return DetectionFailure(frame.sensor, frame.t_ns, "no_board_plane", "not an organised cloud")
-    lo, hi = check_box(cfg.roi_min_xyz, cfg.roi_max_xyz, "stereo detector")
     up = check_axis(cfg.up_axis, "up_axis", "stereo detector")
-    finite = np.isfinite(pts).all(axis=1)
-    safe = np.where(finite[:, None], pts, 0.0)
-    r = np.linalg.norm(safe, axis=1)
-    usable = finite & (r >= cfg.min_range_m) & (r <= cfg.max_range_m)
-    if lo is not None:
-        usable &= box_mask(pts, lo, hi)
+    usable, safe, _ = _usable(pts, cfg)
     normal, d = cand.plane.normal, float(cand.plane.d)
     seeds = np.nonzero(usable & (np.abs(safe @ normal + d) < 2.0 * cfg.plane_threshold_m))[0]
     if seeds.size < max(10, cfg.min_board_points // 4):

@@ -167,21 +167,19 @@ def run_prius(args, console) -> int:
             return lambda d, t: bar.update(task, completed=d, total=t)
 
         with task_runner(args.scheduler if "II" != args.table else "serial") as runner:
-            for table in tables:
+            if "II" in tables:
                 t0 = time.perf_counter()
-                if table == "II":
-                    rows += prius.table_ii(dataset, progress=progress("Table II"))
-                elif table == "III":
-                    rows += prius.table_iii(dataset, draws=args.draws or 200, k=args.boards, seed=args.seed,
-                                            runner=runner, progress=progress("Table III"))
-                elif table == "fig7":
-                    rows += prius.fig7(dataset, draws=args.draws or prius.FIGURE_DRAWS, seed=args.seed,
-                                       ks=tuple(k for k in prius.FIG7_K if k <= dataset.num_boards),
-                                       runner=runner, progress=progress("Fig. 7"))
-                else:
-                    rows += prius.fig8(dataset, draws=args.draws or prius.FIGURE_DRAWS, k=args.boards,
-                                       seed=args.seed, runner=runner, progress=progress("Fig. 8"))
-                seconds[table] = round(time.perf_counter() - t0, 1)
+                rows += prius.table_ii(dataset, progress=progress("Table II"))
+                seconds["II"] = round(time.perf_counter() - t0, 1)
+            drawn = [t for t in tables if t != "II"]
+            if drawn:
+                # one pool of tasks for every drawn table: shared draws run once, no idle
+                # worker between tables
+                t0 = time.perf_counter()
+                names = {"III": "Table III", "fig7": "Fig. 7", "fig8": "Fig. 8"}
+                rows += prius.draw_tables(dataset, drawn, draws=args.draws, k=args.boards, seed=args.seed,
+                                          runner=runner, progress=progress(" + ".join(names[t] for t in drawn)))
+                seconds[" + ".join(drawn)] = round(time.perf_counter() - t0, 1)
             where = runner.description
     meta = {"manifest": str(manifest), "draws": args.draws, "boards": args.boards, "seed": args.seed,
             "draws_default": {"III": 200, "fig7": prius.FIGURE_DRAWS, "fig8": prius.FIGURE_DRAWS},

@@ -386,6 +386,7 @@ def _fit_radar_reference(
     reference: str,
     poses0: Mapping[str, np.ndarray],
     options: CalibrationOptions,
+    covariance: bool = True,
 ) -> _Fit:
     """MCPE with a 2D radar as reference (paper Table III's radar rows). A 2D radar measures
     no elevation, so each pair (sensor, radar) leaves the sensor's height, roll and pitch
@@ -395,7 +396,8 @@ def _fit_radar_reference(
     the radar plane for every sensor alike (the sensors stay consistent with each other), and
     only its in-plane pose (x, y, yaw) free. The covariance adds, jointly for all sensors, how
     far their poses move when the radar is tilted or lifted to the extremes its field of view
-    allows (the same tilt for every pair: those moves are correlated)."""
+    allows (the same tilt for every pair: those moves are correlated). ``covariance=False``:
+    the poses alone (the same poses; no covariance, no field-of-view profile solves)."""
     check_observable(dataset, mode, reference, options.hold_radar_plane)
     radar = reference
     problems, sols, fits = {}, {}, {}
@@ -414,16 +416,23 @@ def _fit_radar_reference(
         problems[s] = prob.with_poses(sol.poses)
         sols[s] = sol
         fits[s] = _Fit(dict(sol.poses), problems[s], sol, {}, 0, {})
-    units = detection_units(dataset)
-    intervals, vertices = fov_bounds_joint(list(problems.values()), radar)
     names = list(problems)
     poses = {radar: np.eye(4)}
     n = 6 * len(names)
     cov = np.zeros((n, n))
+    for s in names:
+        poses[s] = invert(sols[s].poses[radar])
+    if not covariance:
+        # no covariance was computed: NaN, so that nothing can use it as one
+        pose_only = combine_solutions(list(sols.values()), poses=poses, covariance=np.full((n, n), np.nan),
+                                      columns=_radar_reference_columns(radar, names),
+                                      status="every pair converged", extra={})
+        return _Fit(poses, _merged_radar_problem(dataset, radar, poses, problems), pose_only, {}, 0, {})
+    units = detection_units(dataset)
+    intervals, vertices = fov_bounds_joint(list(problems.values()), radar)
     moves = np.zeros((len(vertices), n))
     for j, s in enumerate(names):
         T_s_r = sols[s].poses[radar]
-        poses[s] = invert(T_s_r)
         # T_radar_s = (T_s_r e^xi)^-1 = T_radar_s e^(-Ad(T_s_r) xi)
         Ad = -adjoint(T_s_r)
         C_r = _honest_covariance(dataset, fits[s], units)[0].pose_covariance(radar)
@@ -432,19 +441,26 @@ def _fit_radar_reference(
             moves[v, 6 * j : 6 * j + 6] = Ad @ xi
     if len(vertices):
         cov += moves.T @ moves / len(vertices) / 3.0
+    sol = combine_solutions(
+        list(sols.values()), poses=poses, covariance=cov, columns=_radar_reference_columns(radar, names),
+        status="every pair converged", extra={"radar_reference": intervals},
+    )
+    return _Fit(poses, _merged_radar_problem(dataset, radar, poses, problems), sol, {}, 0, {})
+
+
+def _radar_reference_columns(radar: str, names: list[str]) -> dict[str, np.ndarray]:
     columns = {radar: -np.ones(6, dtype=int)}
     columns.update({s: np.arange(6 * j, 6 * j + 6) for j, s in enumerate(names)})
+    return columns
+
+
+def _merged_radar_problem(dataset: Dataset, radar: str, poses, problems) -> Problem:
     # residuals depend only on relative poses: the pairs' batches hold in the radar's frame too
-    merged = Problem(
+    return Problem(
         tuple(PoseBlock(n, poses[n], (False,) * 6 if n == radar else (True,) * 6) for n in dataset.names),
         tuple(b for p in problems.values() for b in p.observations),
         tuple(b for p in problems.values() for b in p.limits),
     )
-    sol = combine_solutions(
-        list(sols.values()), poses=poses, covariance=cov, columns=columns,
-        status="every pair converged", extra={"radar_reference": intervals},
-    )
-    return _Fit(poses, merged, sol, {}, 0, {})
 
 
 def _theta_all_pairs(dataset: Dataset, poses: Mapping[str, np.ndarray], reference: str, units: DetectionUnits) -> np.ndarray:
@@ -506,7 +522,8 @@ def _cross_validation(
         train = np.setdiff1d(usable, test)
         try:
             if _radar_reference(dataset, mode, reference):
-                fit = _fit_radar_reference(dataset.select_boards(train), mode, reference, poses, options)
+                fit = _fit_radar_reference(dataset.select_boards(train), mode, reference, poses, options,
+                                           covariance=False)
             else:  # a refit from the full fit: one local solve (the full fit chose the basin)
                 fit = _fit(dataset.select_boards(train), mode, reference, poses, options, search=False)
         except RigcalError as exc:
@@ -521,10 +538,12 @@ def _cross_validation(
 
 
 def _fit_screened(
-    dataset: Dataset, mode: str, reference: str, options: CalibrationOptions
+    dataset: Dataset, mode: str, reference: str, options: CalibrationOptions, covariance: bool = True
 ) -> tuple[_Fit, Dataset, dict[str, set[int]]]:
     """Initial guess, outlier screening and the mode's fit: (fit, dataset without the outliers,
-    outliers per sensor). Raises ConvergenceError when the fit does not converge."""
+    outliers per sensor). Raises ConvergenceError when the fit does not converge.
+    ``covariance=False``: the poses are all that is wanted (a radar-reference MCPE skips its
+    covariance and profile solves; the poses are the same)."""
     poses0 = initial_poses(
         dataset, reference, robust=options.detect_outliers, given=options.initial
     )
@@ -533,7 +552,11 @@ def _fit_screened(
     if options.detect_outliers:
         outliers, poses0 = _robust_screen(dataset, reference, poses0, options)
         work = dataset.with_excluded(outliers)
-    fit_mode = _fit_radar_reference if _radar_reference(dataset, mode, reference) else _fit
+    if _radar_reference(dataset, mode, reference):
+        def fit_mode(*args):
+            return _fit_radar_reference(*args, covariance=covariance)
+    else:
+        fit_mode = _fit
     fit = fit_mode(work, mode, reference, poses0, options)
     for _ in range(3):
         if not (options.detect_outliers and fit.solution.converged):
@@ -558,7 +581,7 @@ def calibrate_poses(dataset: Dataset, options: CalibrationOptions = CalibrationO
     :func:`calibrate`."""
     reference = _check(dataset, options)
     with threadpool_limits(limits=1):
-        fit, _, _ = _fit_screened(dataset, options.mode.lower(), reference, options)
+        fit, _, _ = _fit_screened(dataset, options.mode.lower(), reference, options, covariance=False)
     return {s.name: np.array(fit.poses[s.name], dtype=float) for s in dataset.sensors}
 
 

@@ -153,11 +153,18 @@ def run_task(dataset: Dataset, task: DrawTask) -> DrawResult:
     return _rmse_mm(dataset, poses, None), _rmse_mm(dataset, poses, rest)
 
 
+def _expected_cost(task: DrawTask) -> tuple[int, int]:
+    # PSE also estimates a pose per board; every mode grows with the boards
+    return (task.mode == "pse", len(task.boards))
+
+
 def run_tasks(dataset: Dataset, tasks: Sequence[DrawTask], runner=None,
               progress: Callable[[int, int], None] | None = None) -> list[DrawResult]:
     """Every task's result, in task order; identical tasks run once. ``runner``: a
     :class:`rigcal.study.scale.Runner` (default: in this process)."""
     unique = list(dict.fromkeys(tasks))
+    # the costliest first (PSE, many boards), so no worker is left with a long task at the end
+    unique.sort(key=_expected_cost, reverse=True)
     if runner is None:
         from rigcal.study.scale import Runner
 
@@ -207,12 +214,46 @@ def table_iii_tasks(dataset: Dataset, draws: int = 200, k: int = 10, seed: int =
 def table_iii(dataset: Dataset, draws: int = 200, k: int = 10, seed: int = 0,
               progress: Callable[[int, int], None] | None = None, runner=None) -> list[Row]:
     """Table III on ``dataset``: see the module docstring."""
-    configs, sets, tasks = table_iii_tasks(dataset, draws, k, seed)
-    results = run_tasks(dataset, tasks, runner, progress)
+    return draw_tables(dataset, ("III",), draws=draws, k=k, seed=seed, runner=runner, progress=progress)
+
+
+def _table_iii_rows(configs, sets, results: Sequence[DrawResult]) -> list[Row]:
     rows = []
     for i, (label, mode, reference) in enumerate(configs):
         part = results[i * len(sets):(i + 1) * len(sets)]
         rows += _rows_for("III", label, mode, reference, part, _table_iii_paper(label))
+    return rows
+
+
+def draw_tables(dataset: Dataset, tables: Sequence[str], draws: int | None = None, k: int = 10, seed: int = 0,
+                ks: Sequence[int] | None = None, runner=None,
+                progress: Callable[[int, int], None] | None = None) -> list[Row]:
+    """The rows of the drawn tables in ``tables`` (any of ``"III"``, ``"fig7"``, ``"fig8"``, in
+    that order), their calibrations run as one pool of tasks: a task two tables share (Fig. 8's
+    noise-free draws are Table III's first sets) runs once, and no worker idles between
+    tables. ``draws``: sets per table (default: the paper's, 200 and 100); ``k``: boards per
+    set of Table III and Fig. 8; ``ks``: Fig. 7's K (default FIG7_K, up to the boards there
+    are). The same rows as running the tables one by one."""
+    parts = []  # (tasks, rows from their results)
+    for table in tables:
+        if table == "III":
+            configs, sets, tasks = table_iii_tasks(dataset, draws or 200, k, seed)
+            parts.append((tasks, lambda res, c=configs, s=sets: _table_iii_rows(c, s, res)))
+        elif table in ("fig7", "fig8"):
+            if table == "fig7":
+                ks7 = tuple(ks) if ks is not None else tuple(x for x in FIG7_K if x <= dataset.num_boards)
+                plan = fig7_tasks(dataset, draws or FIGURE_DRAWS, seed, ks7)
+            else:
+                plan = fig8_tasks(dataset, draws or FIGURE_DRAWS, k, seed)
+            parts.append(([t for _, _, ts in plan for t in ts],
+                          lambda res, f=table, p=plan: _figure_rows_from(f, p, res)))
+        else:
+            raise ValueError(f"unknown drawn table {table!r} (expected III, fig7 or fig8)")
+    results = run_tasks(dataset, [t for tasks, _ in parts for t in tasks], runner, progress)
+    rows, at = [], 0
+    for tasks, to_rows in parts:
+        rows += to_rows(results[at:at + len(tasks)])
+        at += len(tasks)
     return rows
 
 
@@ -296,7 +337,10 @@ def figure_rows(dataset: Dataset, figure: str, plan, runner=None,
     """Run the tasks of ``plan`` (:func:`fig7_tasks` or :func:`fig8_tasks`) and give the rows of
     ``figure`` (``"fig7"`` or ``"fig8"``)."""
     flat = [t for _, _, tasks in plan for t in tasks]
-    results = run_tasks(dataset, flat, runner, progress)
+    return _figure_rows_from(figure, plan, run_tasks(dataset, flat, runner, progress))
+
+
+def _figure_rows_from(figure: str, plan, results: Sequence[DrawResult]) -> list[Row]:
     rows, at = [], 0
     for x, (label, mode, ref), tasks in plan:
         part = results[at:at + len(tasks)]

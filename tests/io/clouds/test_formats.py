@@ -213,6 +213,33 @@ def test_pcd_padding_count_and_field_order_binary():
     assert cloud.fields["ring"].dtype == np.uint16
 
 
+@pytest.mark.parametrize("xyz_type", ["<f4", "<f8"])
+def test_pcd_binary_adjacent_xyz_after_other_fields(xyz_type):
+    # x y z side by side after a 2-byte field, 19- or 31-byte records: read as one strided
+    # block; the values equal the records' and the points are a new, read-only float64 array
+    rng = np.random.default_rng(5)
+    n = 11
+    rec = np.dtype([("ring", "<u2"), ("x", xyz_type), ("y", xyz_type), ("z", xyz_type), ("t", "u1")])
+    table = np.zeros(n, rec)
+    for name in ("x", "y", "z"):
+        table[name] = rng.normal(size=n)
+    table["t"] = np.arange(n)
+    size = np.dtype(xyz_type).itemsize
+    head = pcd_header("ring x y z t", f"2 {size} {size} {size} 1", "U F F F U", "1 1 1 1 1", n, "binary")
+    data = head + table.tobytes()
+    cloud = parse_pcd_bytes(data, "mem.pcd")
+    expected = np.stack([table[a].astype(float) for a in "xyz"], axis=1)
+    assert np.array_equal(cloud.points_xyz, expected)
+    assert cloud.points_xyz.dtype == np.float64 and cloud.points_xyz.flags.c_contiguous
+    assert not cloud.points_xyz.flags.writeable
+    assert list(cloud.fields) == ["ring", "t"]
+    assert np.array_equal(cloud.fields["t"], np.arange(n))
+    # a duplicated coordinate field is still refused by name
+    twice = pcd_header("x x y z", "4 4 4 4", "F F F F", "1 1 1 1", 1, "binary") + bytes(16)
+    with pytest.raises(InputError, match="field 'x' appears twice"):
+        parse_pcd_bytes(twice, "mem.pcd")
+
+
 def test_pcd_hand_made_compressed_is_column_major():
     n = 4
     x = np.arange(n, dtype="<f4")

@@ -21,8 +21,9 @@ _RING = "ring"
 
 def _frame_from_columns(columns: Sequence[tuple[str, np.ndarray]], source: str, sensor: str,
                         t_ns: int, organized_shape: tuple[int, int] | None,
-                        frame_id: str = "") -> PointCloudFrame:
-    """A frame from named columns (N,) or (N, k); padding ``_`` columns are dropped."""
+                        frame_id: str = "", xyz: np.ndarray | None = None) -> PointCloudFrame:
+    """A frame from named columns (N,) or (N, k); padding ``_`` columns are dropped. ``xyz``:
+    the coordinates as one (N, 3) array, when ``columns`` hold no x, y, z."""
     named: dict[str, np.ndarray] = {}
     for name, col in columns:
         if name == "_":
@@ -34,18 +35,21 @@ def _frame_from_columns(columns: Sequence[tuple[str, np.ndarray]], source: str, 
             if part_name in named:
                 raise InputError(f"{source}: field '{part_name}' appears twice")
             named[part_name] = part
-    missing = [a for a in _XYZ if a not in named]
-    if missing:
-        raise InputError(
-            f"{source}: point cloud has fields {list(named)}, expected x, y, z"
-        )
-    for a in _XYZ:
-        if named[a].dtype.kind not in "iuf":
-            raise InputError(f"{source}: field '{a}' has dtype {named[a].dtype}, expected numbers")
-    xyz = np.empty((named["x"].shape[0], 3))
-    for k, a in enumerate(_XYZ):
-        xyz[:, k] = named[a]
-    points = check_points(xyz, source)
+    if xyz is not None:
+        points = check_points(np.array(xyz, dtype=float), source)  # one cast, a new array
+    else:
+        missing = [a for a in _XYZ if a not in named]
+        if missing:
+            raise InputError(
+                f"{source}: point cloud has fields {list(named)}, expected x, y, z"
+            )
+        for a in _XYZ:
+            if named[a].dtype.kind not in "iuf":
+                raise InputError(f"{source}: field '{a}' has dtype {named[a].dtype}, expected numbers")
+        xyz = np.empty((named["x"].shape[0], 3))
+        for k, a in enumerate(_XYZ):
+            xyz[:, k] = named[a]
+        points = check_points(xyz, source)
     points.setflags(write=False)  # new memory, handed to the frame without another copy
     fields = {}
     for name, col in named.items():

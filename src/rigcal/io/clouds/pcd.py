@@ -140,6 +140,23 @@ def _pcd_layout(header: dict[str, tuple[int, list[str]]], source: str
     return names, dtypes, counts, width, height, width * height, data[0].lower()
 
 
+def _xyz_block(body, names, dtypes, counts, n: int, point_size: int) -> np.ndarray | None:
+    """x, y, z of binary records as one strided (N, 3) view of ``body`` when they are
+    consecutive single fields of one float type (the usual layout), else None."""
+    try:
+        i = names.index("x")
+    except ValueError:
+        return None
+    if (list(names[i:i + 3]) != ["x", "y", "z"] or any(names.count(a) != 1 for a in "xyz")
+            or any(c != 1 for c in counts[i:i + 3])):
+        return None
+    dt = dtypes[i]
+    if dt.kind != "f" or dtypes[i + 1] != dt or dtypes[i + 2] != dt or n == 0:
+        return None
+    offset = sum(d.itemsize * c for d, c in zip(dtypes[:i], counts[:i]))
+    return np.ndarray((n, 3), dtype=dt, buffer=body, offset=offset, strides=(point_size, dt.itemsize))
+
+
 def parse_pcd_bytes(data: bytes, source: str, sensor: str = "", t_ns: int = 0,
                     frame_id: str = "") -> PointCloudFrame:
     """Parse the bytes of a PCD file into a :class:`PointCloudFrame`.
@@ -164,6 +181,11 @@ def parse_pcd_bytes(data: bytes, source: str, sensor: str = "", t_ns: int = 0,
         })
         table = np.frombuffer(body, dtype=record, count=n)
         columns = [(name, table[f"f{k}"]) for k, name in enumerate(names)]
+        xyz = _xyz_block(body, names, dtypes, counts, n, point_size)
+        if xyz is not None:  # x, y, z side by side: one (N, 3) view instead of three columns
+            organized = (height, width) if height > 1 else None
+            rest = [c for c in columns if c[0] not in ("x", "y", "z")]
+            return _frame_from_columns(rest, source, sensor, t_ns, organized, frame_id, xyz=xyz)
     elif kind == "binary_compressed":
         if len(body) < 8:
             raise InputError(

@@ -613,10 +613,11 @@ def _constraint_hessian(problem, layout, T, mult, h=1e-6):
     Hi = (grad[:, 1:, :] - grad[:, :1, :]) / h  # (k, 12 perturbations, 12 gradient entries)
     Hi = 0.5 * (Hi + np.swapaxes(Hi, 1, 2)) * mult[act][:, None, None]
     cols = np.concatenate([layout.cols[ia], layout.cols[ib]], axis=1)  # (k, 12)
-    for i in range(k):
-        keep = cols[i] >= 0
-        c = cols[i][keep]
-        H[np.ix_(c, c)] += Hi[i][np.ix_(keep, keep)]
+    # add every item's block where both columns are free (np.add.at: in item order, repeated
+    # entries accumulate)
+    keep = (cols[:, :, None] >= 0) & (cols[:, None, :] >= 0)
+    flat = cols[:, :, None] * n + cols[:, None, :]
+    np.add.at(H.reshape(-1), flat[keep], Hi[keep])
     return H
 
 

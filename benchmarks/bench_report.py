@@ -3,8 +3,9 @@ browser takes to open it (navigation until every plotly figure is drawn).
 
 Calibrates the shared Prius detections once (FCPE), writes report.json + report.html, then opens
 the page ``--loads`` times in Debian's chromium (playwright, software WebGL) in one browser, a
-new tab each time, and prints min / median / max, with the part spent before the figures start
-(parsing and running the embedded plotly.js) and drawing the 3D scene.
+new tab each time, and prints min / median / max, with the first paint (the verdict and the
+tables on screen), the part spent before the figures start (the first frame, then parsing and
+running the embedded plotly.js) and drawing the 3D scene.
 Usage: python benchmarks/bench_report.py [--loads N]   (needs ../shared, chromium, playwright)
 """
 
@@ -78,7 +79,7 @@ def main() -> int:
         print(f"report.html {html.stat().st_size / 1e6:.2f} MB (report.json {(out / 'report.json').stat().st_size / 1e3:.0f} kB); "
               f"report data {t_data * 1000:.0f} ms, page rendered and written {t_write * 1000:.0f} ms "
               "(in-process, jinja2 already imported after the first)")
-        loads, before, scene = [], [], []
+        loads, first, before, scene = [], [], [], []
         with sync_playwright() as p:
             browser = p.chromium.launch(executable_path=chromium, args=ARGS)
             for k in range(args.loads + 1):
@@ -89,16 +90,19 @@ def main() -> int:
                 page.wait_for_function("document.body.dataset.rendered === 'true'", timeout=120_000)
                 dt = time.perf_counter() - t
                 figs = page.evaluate("window.__figs")
+                paint = page.evaluate("(performance.getEntriesByName('first-contentful-paint')[0] || {}).startTime")
                 page.close()
                 if k == 0:
                     continue  # warm-up: the browser's first page
                 loads.append(dt)
+                first.append(paint / 1000 if paint is not None else float("nan"))
                 before.append(min(v[0] for v in figs.values()) / 1000)
                 s = figs.get("fig-scene")
                 scene.append((s[1] - s[0]) / 1000 if s else float("nan"))
             browser.close()
     print(f"{'open report.html (29 boards)':<40} {'min':>6} {'median':>6} {'max':>6}  (s, {args.loads} loads)")
-    for name, v in (("navigation -> every figure drawn", loads), ("  of which before the first figure", before),
+    for name, v in (("navigation -> every figure drawn", loads), ("  first paint (verdict, tables)", first),
+                    ("  of which before the first figure", before),
                     ("  3D scene drawn (newPlot)", scene)):
         print(f"{name:<40} {min(v):6.2f} {statistics.median(v):6.2f} {max(v):6.2f}")
     return 0

@@ -6,7 +6,9 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -186,6 +188,42 @@ def test_page_is_self_contained(fitted, sim):
     assert html.count("<script>") == 2 and "Plotly.newPlot" in html
     n = int(re.search(r'data-figures="(\d+)"', html).group(1))
     assert n == len(re.findall(r'<div id="fig-[^"]+" class="figure">', html)) >= 5
+
+
+def test_the_embedded_plotly_js_has_every_trace_type_the_pages_draw(fitted, sim):
+    from rigcal.report import figures, study_page
+    from rigcal.report.page import BUNDLE, BUNDLE_TRACES, plotly_js
+
+    if not BUNDLE.is_file():
+        # `make` builds it with npm (tools/plotly-bundle); CI must have it
+        msg = f"{BUNDLE.name} is not built (make builds it with npm from tools/plotly-bundle)"
+        if os.environ.get("CI"):
+            pytest.fail(msg)
+        pytest.skip(msg)
+    text, version = plotly_js()  # rigcal's partial build, package data built by `make`
+    assert text == BUNDLE.read_text(encoding="utf-8")
+    assert re.fullmatch(r"\d+\.\d+\.\d+", version) and "</script" not in text.lower()
+    drawn = {t.get("type", "scatter") for f in all_figures(calibration_report(fitted, sim.dataset)) for t in f["data"]}
+    assert {"scatter", "bar", "scatter3d", "mesh3d"} <= drawn <= BUNDLE_TRACES
+    # every trace type written anywhere in the figure code (error bars' "data", axes' "log" aside)
+    source = Path(figures.__file__).read_text() + Path(study_page.__file__).read_text()
+    assert set(re.findall(r'"type": "(\w+)"', source)) - {"data", "log"} <= BUNDLE_TRACES
+
+
+def test_without_the_partial_build_the_full_plotly_js_is_embedded(monkeypatch, tmp_path):
+    from rigcal.report import page
+
+    monkeypatch.setattr(page, "BUNDLE", tmp_path / "absent.min.js")
+    page.plotly_js.cache_clear()
+    try:
+        text, version = page.plotly_js()
+    finally:
+        page.plotly_js.cache_clear()
+    import importlib.util
+
+    spec = importlib.util.find_spec("plotly")
+    full = Path(next(iter(spec.submodule_search_locations))) / "package_data" / "plotly.min.js"
+    assert text == full.read_text(encoding="utf-8") and re.fullmatch(r"\d+\.\d+\.\d+", version)
 
 
 def test_figures_count_every_board(fitted, sim):

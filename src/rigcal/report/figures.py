@@ -134,16 +134,18 @@ def scene_figure(data: Mapping[str, Any]) -> dict[str, Any] | None:
                        "name": "sensor axes (x red, y green, z blue)" if axis == 0 else "",
                        "legendgroup": "axes", "showlegend": axis == 0,
                        "line": {"color": AXIS_COLOURS[axis], "width": 5}, "hoverinfo": "skip"})
-    traces.append({"type": "scatter3d", "mode": "text", "x": [T[0][3] for T in origins],
-                   "y": [T[1][3] for T in origins], "z": [T[2][3] for T in origins],
-                   "text": [s["name"] for s in scene["sensors"]], "textposition": "top center",
-                   "name": "sensors", "showlegend": False, "hoverinfo": "text"})
+    # the sensors' names at their origins: scene annotations (SVG text that follows the 3D view),
+    # not a scatter3d text trace - plotly.js turns every WebGL text string into triangles, the
+    # costliest part of drawing the scene
+    names = [{"x": T[0][3], "y": T[1][3], "z": T[2][3], "text": s["name"], "showarrow": False,
+              "yanchor": "bottom", "font": {"size": 12}}
+             for T, s in zip(origins, scene["sensors"])]
     layout = _layout(
         f"detections in the frame of {scene['frame']} (drag to rotate, scroll to zoom)",
         height=620,
         scene={"aspectmode": "data", "xaxis": {"title": {"text": "x [m]"}},
                "yaxis": {"title": {"text": "y [m]"}}, "zaxis": {"title": {"text": "z [m]"}},
-               "camera": {"eye": {"x": -1.2, "y": -1.2, "z": 0.9}}},
+               "camera": {"eye": {"x": -1.2, "y": -1.2, "z": 0.9}}, "annotations": names},
         legend={"itemsizing": "constant"},
         margin={"l": 0, "r": 0, "t": 40, "b": 0},
     )
@@ -274,8 +276,8 @@ def mocap_figures(data: Mapping[str, Any]) -> list[dict[str, Any]]:
 
 def all_figures(data: Mapping[str, Any]) -> list[dict[str, Any]]:
     """Every figure of the page (each ``{"id", "data", "layout"}``), in the order they are drawn:
-    the 3D scene last - creating its WebGL context blocks the page for a while (about 2 s with
-    a software renderer), so the 2D figures are drawn before it."""
+    the 3D scene last - creating its WebGL context and drawing it take the longest (about 0.5 s
+    with a software renderer), so the 2D figures are drawn before it."""
     figs = residual_figures(data) + mocap_figures(data) + coverage_figures(data)
     scene = scene_figure(data)
     return figs + ([scene] if scene is not None else [])

@@ -167,7 +167,9 @@ def _keep_holes(
     areas = np.bincount(regions.reshape(-1))
     lo, hi = cfg.min_hole_area_fraction * expected_area, cfg.max_hole_area_fraction * expected_area
     keep = [k for k in range(1, areas.size) if lo <= areas[k] <= hi]
-    return np.isin(regions, keep), [int(areas[k]) for k in keep]
+    is_hole = np.zeros(areas.size, bool)
+    is_hole[keep] = True
+    return is_hole[regions], [int(areas[k]) for k in keep]
 
 
 def _refine_plane(
@@ -223,10 +225,10 @@ def _usable(pts: np.ndarray, cfg: StereoDetectorConfig) -> tuple[np.ndarray, np.
     """(usable mask, points with NaN rows zeroed, whether an ROI box applies): finite points
     within the range limits and the ROI box."""
     lo, hi = check_box(cfg.roi_min_xyz, cfg.roi_max_xyz, "stereo detector")
-    finite = np.isfinite(pts).all(axis=1)
+    finite = np.isfinite(pts.sum(axis=1))  # a NaN or inf coordinate makes the sum one
     safe = np.where(finite[:, None], pts, 0.0)
-    r = np.linalg.norm(safe, axis=1)
-    usable = finite & (r >= cfg.min_range_m) & (r <= cfg.max_range_m)
+    r2 = np.einsum("ij,ij->i", safe, safe)
+    usable = finite & (r2 >= cfg.min_range_m ** 2) & (r2 <= cfg.max_range_m ** 2)
     if lo is not None:
         usable &= box_mask(pts, lo, hi)
     return usable, safe, lo is not None
@@ -269,16 +271,20 @@ def _segment(frame: PointCloudFrame, board: BoardGeometry, cfg: StereoDetectorCo
 
 
 def _detect_on_candidate(
-    frame, pts, usable, cluster, seg: BoardSegment, up, hp, cfg, rng
+    frame, pts, usable, cluster, seg: BoardSegment, up, hp, cfg, rng, intr=None
 ) -> BoardDetection:
+    """Steps 3-4 on one candidate; ``intr`` (fx, fy, cx, cy) of an organised cloud when known
+    (else recovered from the cloud)."""
     normal, d = seg.plane.normal, seg.plane.d
     seed_idx = cluster[seg.plane.inliers]
     organised = frame.organized_shape is not None
-    intr = None
     if organised:
         h, w = frame.organized_shape
         P = pts.reshape(h, w, 3)
-        intr = _intrinsics_from_cloud(P, usable.reshape(h, w), rng)
+        if intr is None:
+            intr = _intrinsics_from_cloud(P, usable.reshape(h, w), rng)
+    else:
+        intr = None
     if intr is not None:
         edges3d, plate_idx, info = _organised_edges(
             P, usable.reshape(h, w), seed_idx, normal, d, intr, hp, cfg
@@ -287,7 +293,10 @@ def _detect_on_candidate(
     else:
         edges3d, plate_idx, info = _unorganised_edges(pts, usable, seed_idx, normal, d, hp, cfg)
         normal, d = info.pop("plane")
-    normal, origin, basis = board_frame(normal, d, up, rays_to_plane(pts[plate_idx], normal, d))
+    # the frame's origin (the plate's centroid on the plane) only shifts the in-plane
+    # coordinates: a regular subset of the plate's points is as good
+    sub = plate_idx[:: max(1, plate_idx.size // 20000)]
+    normal, origin, basis = board_frame(normal, d, up, rays_to_plane(pts[sub], normal, d))
     holes = find_hole_square(to_plane_2d(edges3d, origin, basis), hp)
     centres = from_plane_2d(holes.centres_uv, origin, basis)
     quality = {
@@ -328,7 +337,7 @@ def _organised_edges(P, valid, seed_idx, normal, d, intr, hp: HoleParams, cfg):
         normal, d = -normal, -d
     plate_idx = np.nonzero(flat)[0]
     # expected hole area [px]: at the plate's median depth, foreshortened
-    centre = np.median(plate_pts, axis=0)
+    centre = np.median(plate_pts[:: max(1, plate_pts.shape[0] // 20000)], axis=0)
     z = float(centre[2])
     cosang = abs(float(normal @ centre)) / float(np.linalg.norm(centre))
     expected = math.pi * (hp.radius_m * fx / z) * (hp.radius_m * fy / z) * cosang
@@ -418,7 +427,8 @@ def detect_board_stereo_pair(
 
     1. SGBM on the pair shrunk ``coarse_factor`` times (default: to about 640 px wide; at 4x,
        1/16 of the pixels and 1/4 of the disparities) and the detector's segmentation (ground removal, clusters with a plane of
-       the board's size) on that coarse cloud: the board candidates and how far they are;
+       the board's size) on at most a quarter of ``max_segment_points`` of that coarse cloud
+       (it only has to find the candidates): the board candidates and how far they are;
     2. for each candidate (best first, at most ``max_board_candidates``): SGBM at full
        resolution in the window around its points (plus ``margin_px``), searching disparities
        from ``sgbm.min_disparity`` up to the candidate's nearest point's disparity plus 25 % and
@@ -443,7 +453,8 @@ def detect_board_stereo_pair(
         fine = dataclasses.replace(params, num_disparities=max(16, min(span,
                                                                        params.num_disparities)))
         cloud = point_cloud_in_window(frame, rig, window, fine)
-        det = _detect_seeded(cloud, cand, board, config)
+        intr = (rig.fx, rig.fy, rig.cx - window[0], rig.cy - window[1])
+        det = _detect_seeded(cloud, cand, board, config, intr)
         if not isinstance(det, BoardDetection):  # the whole detector on the window
             det = detect_board_stereo(cloud, board, config)
         if isinstance(det, BoardDetection):
@@ -459,7 +470,7 @@ def detect_board_stereo_pair(
 
 
 def _detect_seeded(frame: PointCloudFrame, cand: BoardSegment, board: BoardGeometry,
-                   cfg: StereoDetectorConfig) -> DetectionResult:
+                   cfg: StereoDetectorConfig, intr=None) -> DetectionResult:
     """Step 3 of the detector on a full-resolution window, seeded by the coarse candidate
     instead of segmenting the window again: the seeds are the usable points within the plane
     threshold (doubled: the coarse plane is coarser) of the candidate's plane; the plate is
@@ -480,7 +491,7 @@ def _detect_seeded(frame: PointCloudFrame, cand: BoardSegment, board: BoardGeome
     hp = HoleParams.from_config(board, cfg)
     try:
         return _detect_on_candidate(frame, pts, usable, seeds, seg, up, hp, cfg,
-                                    np.random.default_rng(cfg.seed))
+                                    np.random.default_rng(cfg.seed), intr)
     except StepFailed as exc:
         return DetectionFailure(frame.sensor, frame.t_ns, exc.reason, exc.detail)
 
@@ -500,7 +511,8 @@ def _board_windows(frame, rig, board, config, params, factor, margin_px
     )
     cloud = point_cloud_from_pair(small, small_rig, coarse_params)
     coarse_cfg = dataclasses.replace(
-        config, min_board_points=max(10, config.min_board_points // (factor * factor)))
+        config, min_board_points=max(10, config.min_board_points // (factor * factor)),
+        max_segment_points=max(1000, config.max_segment_points // 4))
     seg = _segment(cloud, board, coarse_cfg)
     if isinstance(seg, StepFailed):
         return []

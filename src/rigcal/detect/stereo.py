@@ -230,17 +230,17 @@ def detect_board_stereo(
     return fail(failures[0].reason, failures[0].detail)
 
 
-def _usable(pts: np.ndarray, cfg: StereoDetectorConfig) -> tuple[np.ndarray, np.ndarray, bool]:
-    """(usable mask, points with NaN rows zeroed, whether an ROI box applies): finite points
-    within the range limits and the ROI box."""
+def _usable(pts: np.ndarray, cfg: StereoDetectorConfig) -> tuple[np.ndarray, bool]:
+    """(usable mask, whether an ROI box applies): finite points within the range limits and
+    the ROI box."""
     lo, hi = check_box(cfg.roi_min_xyz, cfg.roi_max_xyz, "stereo detector")
-    finite = np.isfinite(pts.sum(axis=1))  # a NaN or inf coordinate makes the sum one
-    safe = np.where(finite[:, None], pts, 0.0)
-    r2 = np.einsum("ij,ij->i", safe, safe)
-    usable = finite & (r2 >= cfg.min_range_m ** 2) & (r2 <= cfg.max_range_m ** 2)
+    with np.errstate(invalid="ignore", over="ignore"):
+        # a NaN coordinate makes r2 NaN, an infinite one makes it inf or NaN: both fail
+        r2 = np.einsum("ij,ij->i", pts, pts)
+        usable = (r2 >= cfg.min_range_m ** 2) & (r2 <= cfg.max_range_m ** 2)
     if lo is not None:
         usable &= box_mask(pts, lo, hi)
-    return usable, safe, lo is not None
+    return usable, lo is not None
 
 
 def _segment(frame: PointCloudFrame, board: BoardGeometry, cfg: StereoDetectorConfig):
@@ -249,7 +249,7 @@ def _segment(frame: PointCloudFrame, board: BoardGeometry, cfg: StereoDetectorCo
     pts = frame.points_xyz
     n_all = pts.shape[0]
     up = check_axis(cfg.up_axis, "up_axis", "stereo detector")
-    usable, _, roi = _usable(pts, cfg)
+    usable, roi = _usable(pts, cfg)
     n_use = int(usable.sum())
     if n_use < cfg.min_board_points:
         return StepFailed(
@@ -506,9 +506,11 @@ def _detect_seeded(frame: PointCloudFrame, cand: BoardSegment, board: BoardGeome
     if frame.organized_shape is None or pts.shape[0] == 0:
         return DetectionFailure(frame.sensor, frame.t_ns, "no_board_plane", "not an organised cloud")
     up = check_axis(cfg.up_axis, "up_axis", "stereo detector")
-    usable, safe, _ = _usable(pts, cfg)
+    usable, _ = _usable(pts, cfg)
     normal, d = cand.plane.normal, float(cand.plane.d)
-    seeds = np.nonzero(usable & (np.abs(safe @ normal + d) < 2.0 * cfg.plane_threshold_m))[0]
+    with np.errstate(invalid="ignore"):
+        near = np.abs(pts @ normal + d) < 2.0 * cfg.plane_threshold_m
+    seeds = np.nonzero(usable & near)[0]
     if seeds.size < max(10, cfg.min_board_points // 4):
         return DetectionFailure(frame.sensor, frame.t_ns, "no_board_plane",
                                 f"{seeds.size} window points near the coarse board plane")

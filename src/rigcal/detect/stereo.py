@@ -450,7 +450,7 @@ def detect_board_stereo_pair(
 
     1. SGBM on the pair shrunk ``coarse_factor`` times (default: to about 480 px wide; at 4x,
        1/16 of the pixels and 1/4 of the disparities) and the detector's segmentation (ground
-       removal, clusters with a plane of the board's size) on at most a quarter of
+       removal, clusters with a plane of the board's size) on at most an eighth of
        ``max_segment_points`` of that coarse cloud (it only has to find the candidates): the
        board candidates and how far they are;
     2. for each candidate (best first, at most ``max_board_candidates``): SGBM at full
@@ -541,7 +541,7 @@ def _board_windows(frame, rig, board, config, params, factor, margin_px
     cloud = point_cloud_from_pair(small, small_rig, coarse_params)
     coarse_cfg = dataclasses.replace(
         config, min_board_points=max(10, config.min_board_points // (factor * factor)),
-        max_segment_points=max(1000, config.max_segment_points // 4))
+        max_segment_points=max(1000, config.max_segment_points // 8))
     seg = _segment(cloud, board, coarse_cfg)
     if isinstance(seg, StepFailed):
         return []

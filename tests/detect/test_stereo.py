@@ -298,6 +298,59 @@ def test_windows_are_detected_from_the_coarse_candidate_without_segmenting_again
     assert max(errors_m(det, scene.truth)) <= 0.025
 
 
+def test_seeded_window_detection_survives_a_tilted_coarse_plane(near_pairs):
+    """The coarse candidate's plane seeds the window's plate; tilted by 10 deg about the
+    board's centre it would cut off part of the plate (and tilt the refit), but it is refitted
+    on a half-resolution plate first: the holes come out as accurately as from the true
+    plane."""
+    from rigcal.detect.stereo import _board_windows, _detect_seeded
+    from rigcal.geometry.fitting import PlaneFit
+
+    scene, pair, _ = near_pairs[2]
+    cfg = StereoDetectorConfig()
+    (window, _, cand), *_ = _board_windows(pair, RIG, BoardGeometry(), cfg, SgbmParams(), 4, 32)
+    cloud = point_cloud_in_window(pair, RIG, window)
+    intr = (RIG.fx, RIG.fy, RIG.cx - window[0], RIG.cy - window[1])
+    n, d = cand.plane.normal, float(cand.plane.d)
+    c = scene.truth.mean(axis=0)
+    pivot = c - (c @ n + d) * n
+    axis = np.cross(n, [0.0, 1.0, 0.0])
+    axis /= np.linalg.norm(axis)
+    a = math.radians(10.0)
+    tilted = n * math.cos(a) + np.cross(axis, n) * math.sin(a)
+    seed = cand._replace(plane=PlaneFit(tilted, -float(tilted @ pivot), cand.plane.inliers,
+                                        cand.plane.rms))
+    det = _detect_seeded(cloud, seed, BoardGeometry(), cfg, intr)
+    ref = _detect_seeded(cloud, cand, BoardGeometry(), cfg, intr)
+    assert isinstance(det, BoardDetection) and isinstance(ref, BoardDetection), (det, ref)
+    assert_order(det, scene.truth)
+    assert max(errors_m(det, scene.truth)) <= 0.01
+    assert np.max(np.linalg.norm(det.points - ref.points, axis=1)) < 0.002
+
+
+def test_refine_plane_is_the_least_squares_plane_of_the_points_near_it():
+    from rigcal.detect.stereo import _refine_plane
+    from rigcal.geometry.fitting import fit_plane_lstsq
+
+    rng = np.random.default_rng(3)
+    plate = np.column_stack([rng.uniform(-0.5, 0.5, 5000), rng.uniform(-0.7, 0.7, 5000),
+                             rng.normal(0, 0.01, 5000)])
+    far = np.column_stack([rng.uniform(-1, 1, (500, 2)), rng.uniform(0.3, 1.0, 500)])
+    R = np.array([[0.96, 0.0, 0.28], [0.0, 1.0, 0.0], [-0.28, 0.0, 0.96]])
+    pts = np.vstack([plate, far]) @ R.T + [0.2, -0.1, 4.0]
+    n0 = R @ np.array([0.05, 0.0, 1.0])
+    n0 /= np.linalg.norm(n0)
+    d0 = -float(n0 @ np.array([0.2, -0.1, 4.0]))
+    normal, d, rms = _refine_plane(pts, n0, d0, 0.1)
+    near = np.abs(pts @ n0 + d0) < 0.1
+    ref = fit_plane_lstsq(pts[near])
+    assert np.allclose(normal, ref.normal, atol=1e-9) and d == pytest.approx(ref.d, abs=1e-9)
+    assert rms == pytest.approx(ref.rms, rel=1e-6)
+    # too few points near it: the given plane is kept
+    n1, d1, rms1 = _refine_plane(pts[:2], n0, d0, 0.1)
+    assert n1 is n0 and d1 == d0 and math.isnan(rms1)
+
+
 def test_pair_detector_falls_back_to_the_whole_image():
     scene = Scene(700, 7.0, lateral=-0.4, yaw=math.radians(20), tilt=math.radians(8))
     pair = scene.pair()

@@ -535,9 +535,13 @@ class HoleSquare(NamedTuple):
 
 
 def _vote_square(edges: np.ndarray, hp: HoleParams) -> tuple[np.ndarray, float, float]:
-    """Hough vote for the square template's centre and rotation: every edge point votes, for
-    each rotation and each hole, on the circle of centres it could belong to. Returns the
-    best (centre (2,), angle, peak votes)."""
+    """Hough vote for the square template's centre and rotation. Returns the best (centre (2,),
+    angle, peak votes).
+
+    Separable in two steps: every edge point votes on the circle of hole centres it could
+    belong to (one grid, the same for every rotation); then, for each rotation, a square
+    centre gets the hole-centre votes at its four holes (the template's offsets rounded to
+    whole cells, so each rotation is four shifted sums of that grid, not a vote per point)."""
     cell = hp.vote_cell_m
     step = math.radians(hp.vote_angle_step_deg)
     thetas = np.arange(-math.pi / 4, math.pi / 4 - 1e-9, step)
@@ -547,19 +551,24 @@ def _vote_square(edges: np.ndarray, hp: HoleParams) -> tuple[np.ndarray, float, 
     tmpl = square_template_2d(hp.spacing_m)
     c, s = np.cos(thetas), np.sin(thetas)
     rot = np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)  # (T, 2, 2)
-    offs = np.einsum("tij,kj->tki", rot, tmpl)  # (T, 4, 2)
-    shifts = (offs[:, :, None, :] + ring[None, None]).reshape(len(thetas), -1, 2)  # (T, 4F, 2)
+    offs = np.einsum("tij,kj->tki", rot, tmpl)  # (T, 4, 2): hole k of rotation t - centre
     margin = hp.spacing_m * math.sqrt(0.5) + hp.radius_m + 3 * cell
     lo = edges.min(axis=0) - margin
     size = np.ceil((edges.max(axis=0) + margin - lo) / cell).astype(np.int64) + 1
-    cand = edges[:, None, None, :] - shifts[None]  # (M, T, 4F, 2)
-    # no clipping needed: every shift is at most spacing / sqrt(2) + radius long, so each
-    # candidate lies at least 3 cells inside the grid's margin
-    ij = np.floor((cand - lo) / cell).astype(np.int64)
-    t_idx = np.arange(len(thetas))[None, :, None]
-    flat = (t_idx * size[0] + ij[..., 0]) * size[1] + ij[..., 1]
-    acc = np.bincount(flat.reshape(-1), minlength=len(thetas) * size[0] * size[1]).astype(float)
-    acc = acc.reshape(len(thetas), size[0], size[1])
+    # hole-centre votes: at most radius + 1 cell from the edges, well inside the margin
+    ij = np.floor((edges[:, None, :] - ring[None] - lo) / cell).astype(np.int64)
+    holes = np.bincount((ij[..., 0] * size[1] + ij[..., 1]).reshape(-1),
+                        minlength=int(size[0] * size[1])).reshape(size[0], size[1])
+    # square centre (i, j) of rotation t: sum over k of holes[(i, j) + shift[t, k]], zero
+    # outside the grid (padded by the largest shift)
+    shift = np.rint(offs / cell).astype(np.int64)
+    pad = int(np.abs(shift).max())
+    padded = np.zeros((size[0] + 2 * pad, size[1] + 2 * pad))
+    padded[pad:-pad or None, pad:-pad or None] = holes
+    acc = np.zeros((len(thetas), size[0], size[1]))
+    for t in range(len(thetas)):
+        for di, dj in shift[t]:
+            acc[t] += padded[pad + di : pad + di + size[0], pad + dj : pad + dj + size[1]]
     # 3x3 box smoothing in x, y (tolerates the radius and quantisation errors)
     sm = acc.copy()
     sm[:, 1:, :] += acc[:, :-1, :]

@@ -52,10 +52,9 @@ from rigcal.detect.pointcloud import (
     segment_board,
 )
 from rigcal.detect.result import BoardDetection, DetectionFailure, DetectionResult
-from rigcal.errors import ConfigError, GeometryError
+from rigcal.errors import ConfigError
 from rigcal.geometry.fitting import (
     PlaneFit,
-    fit_plane_lstsq,
     from_plane_2d,
     intersect_rays_plane,
     plane_basis,
@@ -167,21 +166,33 @@ def _keep_holes(
     areas = np.bincount(regions.reshape(-1))
     lo, hi = cfg.min_hole_area_fraction * expected_area, cfg.max_hole_area_fraction * expected_area
     keep = [k for k in range(1, areas.size) if lo <= areas[k] <= hi]
-    return np.isin(regions, keep), [int(areas[k]) for k in keep]
+    is_hole = np.zeros(areas.size, bool)
+    is_hole[keep] = True
+    return is_hole[regions], [int(areas[k]) for k in keep]
 
 
 def _refine_plane(
     points: np.ndarray, normal: np.ndarray, d: float, thr: float
 ) -> tuple[np.ndarray, float, float]:
-    """Least-squares plane of the points within ``thr`` of the given one (kept if that fails)."""
+    """Least-squares plane of the (finite) points within ``thr`` of the given one, and its rms
+    distance (the given plane kept if they are too few or collinear). Computed here from the
+    3x3 scatter of the centred points: the plate holds ~10^5 of them, and
+    :func:`~rigcal.geometry.fitting.fit_plane_lstsq` would copy and check them again."""
     near = np.abs(points @ normal + d) < thr
-    if near.sum() < 3:
+    n = int(near.sum())
+    if n < 3:
         return normal, d, float("nan")
-    try:
-        fit = fit_plane_lstsq(points[near])
-    except GeometryError:
+    q = points[near]
+    c = np.ones(n) @ q / n
+    q -= c
+    w, v = np.linalg.eigh(q.T @ q / n)  # ascending
+    if not np.all(np.isfinite(w)) or w[1] <= 1e-12 * max(w[2], 1e-300):
         return normal, d, float("nan")
-    return fit.normal, fit.d, fit.rms
+    nrm = v[:, 0] / np.linalg.norm(v[:, 0])
+    off = -float(nrm @ c)
+    if off < 0:
+        nrm, off = -nrm, -off
+    return nrm, off, float(np.sqrt(max(w[0], 0.0)))
 
 
 # ----------------------------------------------------------------------------- detector
@@ -219,17 +230,17 @@ def detect_board_stereo(
     return fail(failures[0].reason, failures[0].detail)
 
 
-def _usable(pts: np.ndarray, cfg: StereoDetectorConfig) -> tuple[np.ndarray, np.ndarray, bool]:
-    """(usable mask, points with NaN rows zeroed, whether an ROI box applies): finite points
-    within the range limits and the ROI box."""
+def _usable(pts: np.ndarray, cfg: StereoDetectorConfig) -> tuple[np.ndarray, bool]:
+    """(usable mask, whether an ROI box applies): finite points within the range limits and
+    the ROI box."""
     lo, hi = check_box(cfg.roi_min_xyz, cfg.roi_max_xyz, "stereo detector")
-    finite = np.isfinite(pts).all(axis=1)
-    safe = np.where(finite[:, None], pts, 0.0)
-    r = np.linalg.norm(safe, axis=1)
-    usable = finite & (r >= cfg.min_range_m) & (r <= cfg.max_range_m)
+    with np.errstate(invalid="ignore", over="ignore"):
+        # a NaN coordinate makes r2 NaN, an infinite one makes it inf or NaN: both fail
+        r2 = np.einsum("ij,ij->i", pts, pts)
+        usable = (r2 >= cfg.min_range_m ** 2) & (r2 <= cfg.max_range_m ** 2)
     if lo is not None:
         usable &= box_mask(pts, lo, hi)
-    return usable, safe, lo is not None
+    return usable, lo is not None
 
 
 def _segment(frame: PointCloudFrame, board: BoardGeometry, cfg: StereoDetectorConfig):
@@ -238,7 +249,7 @@ def _segment(frame: PointCloudFrame, board: BoardGeometry, cfg: StereoDetectorCo
     pts = frame.points_xyz
     n_all = pts.shape[0]
     up = check_axis(cfg.up_axis, "up_axis", "stereo detector")
-    usable, _, roi = _usable(pts, cfg)
+    usable, roi = _usable(pts, cfg)
     n_use = int(usable.sum())
     if n_use < cfg.min_board_points:
         return StepFailed(
@@ -269,25 +280,33 @@ def _segment(frame: PointCloudFrame, board: BoardGeometry, cfg: StereoDetectorCo
 
 
 def _detect_on_candidate(
-    frame, pts, usable, cluster, seg: BoardSegment, up, hp, cfg, rng
+    frame, pts, usable, cluster, seg: BoardSegment, up, hp, cfg, rng, intr=None, prefit=False
 ) -> BoardDetection:
+    """Steps 3-4 on one candidate; ``intr`` (fx, fy, cx, cy) of an organised cloud when known
+    (else recovered from the cloud); ``prefit``: the candidate's plane is coarse, refit it
+    before taking the plate (organised clouds)."""
     normal, d = seg.plane.normal, seg.plane.d
     seed_idx = cluster[seg.plane.inliers]
     organised = frame.organized_shape is not None
-    intr = None
     if organised:
         h, w = frame.organized_shape
         P = pts.reshape(h, w, 3)
-        intr = _intrinsics_from_cloud(P, usable.reshape(h, w), rng)
+        if intr is None:
+            intr = _intrinsics_from_cloud(P, usable.reshape(h, w), rng)
+    else:
+        intr = None
     if intr is not None:
         edges3d, plate_idx, info = _organised_edges(
-            P, usable.reshape(h, w), seed_idx, normal, d, intr, hp, cfg
+            P, usable.reshape(h, w), seed_idx, normal, d, intr, hp, cfg, prefit
         )
         normal, d = info.pop("plane")
     else:
         edges3d, plate_idx, info = _unorganised_edges(pts, usable, seed_idx, normal, d, hp, cfg)
         normal, d = info.pop("plane")
-    normal, origin, basis = board_frame(normal, d, up, rays_to_plane(pts[plate_idx], normal, d))
+    # the frame's origin (the plate's centroid on the plane) only shifts the in-plane
+    # coordinates: a regular subset of the plate's points is as good
+    sub = plate_idx[:: max(1, plate_idx.size // 20000)]
+    normal, origin, basis = board_frame(normal, d, up, rays_to_plane(pts[sub], normal, d))
     holes = find_hole_square(to_plane_2d(edges3d, origin, basis), hp)
     centres = from_plane_2d(holes.centres_uv, origin, basis)
     quality = {
@@ -306,21 +325,34 @@ def _detect_on_candidate(
     return BoardDetection(frame.sensor, frame.t_ns, centres, quality)
 
 
-def _organised_edges(P, valid, seed_idx, normal, d, intr, hp: HoleParams, cfg):
+def _plate_region(P, valid, seed_rc, normal, d, cfg) -> np.ndarray:
+    """(H, W) bool: the 8-connected region of valid pixels within ``jump_m`` of the plane that
+    holds most of the seed pixels ``seed_rc`` (rows, cols)."""
     import cv2
 
-    h, w = valid.shape
-    fx, fy, cx, cy = intr
     with np.errstate(invalid="ignore"):
         s = P @ normal + d
     plate_px = valid & (np.abs(s) < cfg.jump_m)
-    n_lab, lab = cv2.connectedComponents(plate_px.astype(np.uint8), connectivity=8)
-    seed_lab = lab.reshape(-1)[seed_idx]
+    _, lab = cv2.connectedComponents(plate_px.astype(np.uint8), connectivity=8)
+    seed_lab = lab[seed_rc]
     seed_lab = seed_lab[seed_lab > 0]
     if seed_lab.size == 0:
         raise StepFailed("no_board_plane", "the board plane's points form no image region")
-    board_lab = int(np.argmax(np.bincount(seed_lab)))
-    plate = lab == board_lab
+    return lab == int(np.argmax(np.bincount(seed_lab)))
+
+
+def _organised_edges(P, valid, seed_idx, normal, d, intr, hp: HoleParams, cfg, prefit=False):
+    h, w = valid.shape
+    fx, fy, cx, cy = intr
+    seed_rc = np.divmod(seed_idx, w)
+    if prefit:
+        # the seed plane may be coarse (tilted: part of the plate outside jump_m of it): refit
+        # it on the plate of every other row and column first, then take the plate again
+        sub = _plate_region(P[::2, ::2], valid[::2, ::2], (seed_rc[0] // 2, seed_rc[1] // 2),
+                            normal, d, cfg)
+        normal, d, _ = _refine_plane(P[::2, ::2][sub], normal, d, cfg.jump_m)
+        normal, d, _ = _refine_plane(P[::2, ::2][sub], normal, d, cfg.plane_threshold_m)
+    plate = _plate_region(P, valid, seed_rc, normal, d, cfg)
     flat = plate.reshape(-1)
     plate_pts = P.reshape(-1, 3)[flat]
     normal, d, rms = _refine_plane(plate_pts, normal, d, cfg.plane_threshold_m)
@@ -328,7 +360,7 @@ def _organised_edges(P, valid, seed_idx, normal, d, intr, hp: HoleParams, cfg):
         normal, d = -normal, -d
     plate_idx = np.nonzero(flat)[0]
     # expected hole area [px]: at the plate's median depth, foreshortened
-    centre = np.median(plate_pts, axis=0)
+    centre = np.median(plate_pts[:: max(1, plate_pts.shape[0] // 20000)], axis=0)
     z = float(centre[2])
     cosang = abs(float(normal @ centre)) / float(np.linalg.norm(centre))
     expected = math.pi * (hp.radius_m * fx / z) * (hp.radius_m * fy / z) * cosang
@@ -416,9 +448,11 @@ def detect_board_stereo_pair(
     :class:`~rigcal.sensors.stereo.StereoRig`), matching at full resolution only where the
     board can be.
 
-    1. SGBM on the pair shrunk ``coarse_factor`` times (default: to about 640 px wide; at 4x,
-       1/16 of the pixels and 1/4 of the disparities) and the detector's segmentation (ground removal, clusters with a plane of
-       the board's size) on that coarse cloud: the board candidates and how far they are;
+    1. SGBM on the pair shrunk ``coarse_factor`` times (default: to about 480 px wide; at 4x,
+       1/16 of the pixels and 1/4 of the disparities) and the detector's segmentation (ground
+       removal, clusters with a plane of the board's size) on at most an eighth of
+       ``max_segment_points`` of that coarse cloud (it only has to find the candidates): the
+       board candidates and how far they are;
     2. for each candidate (best first, at most ``max_board_candidates``): SGBM at full
        resolution in the window around its points (plus ``margin_px``), searching disparities
        from ``sgbm.min_disparity`` up to the candidate's nearest point's disparity plus 25 % and
@@ -435,7 +469,7 @@ def detect_board_stereo_pair(
 
     params = SgbmParams() if sgbm is None else sgbm
     if coarse_factor is None:
-        coarse_factor = max(1, int(rig.width) // 640)
+        coarse_factor = max(1, int(rig.width) // 480)
     windows = _board_windows(frame, rig, board, config, params, coarse_factor, margin_px) \
         if coarse_factor > 1 else []
     for window, d_max, cand in windows:
@@ -443,7 +477,8 @@ def detect_board_stereo_pair(
         fine = dataclasses.replace(params, num_disparities=max(16, min(span,
                                                                        params.num_disparities)))
         cloud = point_cloud_in_window(frame, rig, window, fine)
-        det = _detect_seeded(cloud, cand, board, config)
+        intr = (rig.fx, rig.fy, rig.cx - window[0], rig.cy - window[1])
+        det = _detect_seeded(cloud, cand, board, config, intr)
         if not isinstance(det, BoardDetection):  # the whole detector on the window
             det = detect_board_stereo(cloud, board, config)
         if isinstance(det, BoardDetection):
@@ -459,18 +494,23 @@ def detect_board_stereo_pair(
 
 
 def _detect_seeded(frame: PointCloudFrame, cand: BoardSegment, board: BoardGeometry,
-                   cfg: StereoDetectorConfig) -> DetectionResult:
+                   cfg: StereoDetectorConfig, intr=None) -> DetectionResult:
     """Step 3 of the detector on a full-resolution window, seeded by the coarse candidate
     instead of segmenting the window again: the seeds are the usable points within the plane
-    threshold (doubled: the coarse plane is coarser) of the candidate's plane; the plate is
-    then found, refitted and searched for holes exactly as after a segmentation."""
+    threshold (doubled: the coarse plane is coarser) of the candidate's plane. The coarse
+    plane can be tilted enough to cut off part of the plate, so it is first refitted on the
+    plate of every other row and column (points within ``jump_m``, then the plane threshold);
+    the plate is then found, refitted and searched for holes exactly as after a
+    segmentation."""
     pts = frame.points_xyz
     if frame.organized_shape is None or pts.shape[0] == 0:
         return DetectionFailure(frame.sensor, frame.t_ns, "no_board_plane", "not an organised cloud")
     up = check_axis(cfg.up_axis, "up_axis", "stereo detector")
-    usable, safe, _ = _usable(pts, cfg)
+    usable, _ = _usable(pts, cfg)
     normal, d = cand.plane.normal, float(cand.plane.d)
-    seeds = np.nonzero(usable & (np.abs(safe @ normal + d) < 2.0 * cfg.plane_threshold_m))[0]
+    with np.errstate(invalid="ignore"):
+        near = np.abs(pts @ normal + d) < 2.0 * cfg.plane_threshold_m
+    seeds = np.nonzero(usable & near)[0]
     if seeds.size < max(10, cfg.min_board_points // 4):
         return DetectionFailure(frame.sensor, frame.t_ns, "no_board_plane",
                                 f"{seeds.size} window points near the coarse board plane")
@@ -480,7 +520,7 @@ def _detect_seeded(frame: PointCloudFrame, cand: BoardSegment, board: BoardGeome
     hp = HoleParams.from_config(board, cfg)
     try:
         return _detect_on_candidate(frame, pts, usable, seeds, seg, up, hp, cfg,
-                                    np.random.default_rng(cfg.seed))
+                                    np.random.default_rng(cfg.seed), intr, prefit=True)
     except StepFailed as exc:
         return DetectionFailure(frame.sensor, frame.t_ns, exc.reason, exc.detail)
 
@@ -500,7 +540,8 @@ def _board_windows(frame, rig, board, config, params, factor, margin_px
     )
     cloud = point_cloud_from_pair(small, small_rig, coarse_params)
     coarse_cfg = dataclasses.replace(
-        config, min_board_points=max(10, config.min_board_points // (factor * factor)))
+        config, min_board_points=max(10, config.min_board_points // (factor * factor)),
+        max_segment_points=max(1000, config.max_segment_points // 8))
     seg = _segment(cloud, board, coarse_cfg)
     if isinstance(seg, StepFailed):
         return []

@@ -12,7 +12,7 @@ import pytest
 from rigcal.cli.main import run
 from rigcal.io.dataset.manifest import load_manifest
 from rigcal.study import prius
-from rigcal.study.scale import Runner, task_runner
+from rigcal.study.scale import MAX_CHUNK, Runner, chunk_size, task_runner
 
 MANIFEST = Path(__file__).resolve().parents[2] / "examples" / "prius" / "rig.yaml"
 SHARED = Path(__file__).resolve().parents[3] / "shared" / "data" / "tudelft_prius"
@@ -38,6 +38,16 @@ def test_map_keeps_item_order_and_reports_progress(runner):
     assert seen[0] == (0, 20) and seen[-1] == (20, 20) and len(seen) == 21
     assert "scheduler" in runner.description and runner.workers == 2
     assert Runner().map(operator.add, [1, 2], shared=1) == [2, 3]
+
+
+def test_many_items_run_in_chunks_in_item_order(runner):
+    # 2 workers x 50 chunks x 3: three items per Dask task, the last chunk short
+    n = 2 * 50 * 3 + 2
+    assert chunk_size(n, 2) == 3 and chunk_size(10, 2) == 1 and chunk_size(10**6, 2) == MAX_CHUNK
+    seen = []
+    out = runner.map(operator.mul, list(range(n)), shared=3, progress=lambda d, t: seen.append(d))
+    assert out == [3 * i for i in range(n)]
+    assert seen[0] == 0 and seen[-1] == n and seen == sorted(seen) and len(seen) == 1 + -(-n // 3)
 
 
 def test_a_failing_task_raises_here(runner):

@@ -72,21 +72,44 @@ class Runner:
         from distributed import as_completed
 
         remote = self.client.scatter(shared, broadcast=True, hash=False) if shared is not None else None
-        futures = self.client.map(fn, [remote] * total, items, pure=False,
-                                  key=[f"{name}-{os.getpid()}-{id(items)}-{i}" for i in range(total)])
-        index = {f.key: i for i, f in enumerate(futures)}
+        # consecutive items in chunks: a task's round trip through the scheduler costs a few
+        # milliseconds, as much as a small calibration; a few tasks per worker stay in flight
+        size = chunk_size(total, self.workers)
+        starts = list(range(0, total, size))
+        chunks = [items[i:i + size] for i in starts]
+        futures = self.client.map(_run_chunk, [fn] * len(chunks), [remote] * len(chunks), chunks, pure=False,
+                                  key=[f"{name}-{os.getpid()}-{id(items)}-{i}" for i in starts])
+        index = {f.key: i for f, i in zip(futures, starts)}
         out: list[Any] = [None] * total
         done = 0
         try:
             for fut in as_completed(futures):
-                out[index[fut.key]] = fut.result()
-                done += 1
+                part = fut.result()
+                at = index[fut.key]
+                out[at:at + len(part)] = part
+                done += len(part)
                 if progress:
                     progress(done, total)
         finally:
             if done < total:
                 self.client.cancel(futures)
         return out
+
+
+#: items per Dask task at most, and chunks per worker at least (so that the last chunks, which
+#: decide when a map ends, stay short)
+MAX_CHUNK = 8
+MIN_CHUNKS_PER_WORKER = 50
+
+
+def chunk_size(total: int, workers: int) -> int:
+    """Items per Dask task for ``total`` items on ``workers`` workers: 1 for a short map, up to
+    MAX_CHUNK when there are many items."""
+    return max(1, min(MAX_CHUNK, total // (max(workers, 1) * MIN_CHUNKS_PER_WORKER)))
+
+
+def _run_chunk(fn: Callable[[Any, Any], Any], shared: Any, chunk: Sequence[Any]) -> list[Any]:
+    return [fn(shared, item) for item in chunk]
 
 
 @contextmanager

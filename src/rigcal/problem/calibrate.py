@@ -10,7 +10,6 @@ from dataclasses import dataclass, field, replace
 from typing import Mapping
 
 import numpy as np
-from threadpoolctl import threadpool_limits
 
 from rigcal.dataset import Dataset, SensorKind
 from rigcal.errors import ConfigError, ConvergenceError, RigcalError
@@ -34,7 +33,7 @@ from rigcal.problem.observability import check_observable
 from rigcal.problem.outliers import OutlierRule, find_outliers
 from rigcal.problem.pairs import all_pairs, pair_data
 from rigcal.problem.result import CalibrationResult, SensorEstimate
-from rigcal.problem.numerics import scale_rows
+from rigcal.problem.numerics import scale_rows, single_threaded
 from rigcal.problem.noise import (
     DetectionUnits,
     detection_units,
@@ -580,7 +579,7 @@ def calibrate_poses(dataset: Dataset, options: CalibrationOptions = CalibrationO
     warnings and cross-validation: for studies that only evaluate the poses. Raises as
     :func:`calibrate`."""
     reference = _check(dataset, options)
-    with threadpool_limits(limits=1):
+    with single_threaded():
         fit, _, _ = _fit_screened(dataset, options.mode.lower(), reference, options, covariance=False)
     return {s.name: np.array(fit.poses[s.name], dtype=float) for s in dataset.sensors}
 
@@ -595,7 +594,7 @@ def calibrate(dataset: Dataset, options: CalibrationOptions = CalibrationOptions
     reference = _check(dataset, options)
     mode = options.mode.lower()
     ignored = {s.name: tuple(sorted(s.excluded)) for s in dataset.sensors if s.excluded}
-    with threadpool_limits(limits=1):
+    with single_threaded():
         fit, work, outliers = _fit_screened(dataset, mode, reference, options)
         rmse, per_board = evaluate_pairs(work, fit.poses)
         cv = (

@@ -38,12 +38,12 @@ from typing import Mapping, Sequence
 
 import numpy as np
 from scipy.spatial import cKDTree
-from threadpoolctl import threadpool_limits
 
 from rigcal.dataset import SensorKind
 from rigcal.errors import ConfigError, ConvergenceError, InputError, RigcalError
 from rigcal.geometry.se3 import invert
 from rigcal.geometry.so3 import so3_log
+from rigcal.problem.numerics import single_threaded
 from rigcal.problem.residuals import MODEL_CAMERA, MODEL_POINT, MODEL_SURFACE
 from rigcal.problem.result import CalibrationResult, SensorEstimate
 from rigcal.problem.solver import Observations, PoseBlock, PosePriors, Problem, solve
@@ -790,7 +790,7 @@ def calibrate_mocap_fit(
         o.keypoints_target is None and kinds[o.sensor] == SensorKind.LIDAR for o in observations)
     phase, phase_it, it = "centroid", 0, 0
     sol = None
-    with threadpool_limits(limits=1):
+    with single_threaded():
         block_poses: dict[str, np.ndarray] = {}
         while True:
             it += 1
@@ -820,7 +820,7 @@ def calibrate_mocap_fit(
     assert sol is not None
     holds = hold_labels(observations)
     coupled = options.target_pose_sigma is not None or boards is not None
-    with threadpool_limits(limits=1):
+    with single_threaded():
         scale, infl, hsig, joint, determined = _fit_statistics(prob, sol, sensors, observations, holds, options)
         if coupled or any(abs(np.log(v)) > np.log(4.0) for v in scale.values()):
             # every sensor weighted by its own noise (and the robust loss's scale with it)

@@ -73,6 +73,24 @@ def block_diag(*blocks: np.ndarray) -> np.ndarray:
     return out
 
 
+# --- threads ----------------------------------------------------------------------------------
+
+_THREADPOOLS = None
+
+
+def single_threaded():
+    """A context manager limiting the BLAS/OpenMP thread pools to one thread (small dense
+    problems: threads cost more than they bring, and study workers run one per core). The
+    thread pools are looked up once per process (threadpoolctl's lookup costs about a
+    millisecond, as much as a small solve)."""
+    global _THREADPOOLS
+    from threadpoolctl import ThreadpoolController
+
+    if _THREADPOOLS is None:
+        _THREADPOOLS = ThreadpoolController()
+    return _THREADPOOLS.limit(limits=1)
+
+
 # --- dense linear algebra --------------------------------------------------------------------
 
 
@@ -326,6 +344,7 @@ __all__ = [
     "nnls",
     "null_space",
     "scale_rows",
+    "single_threaded",
     "spd_solver",
     "to_dense",
 ]

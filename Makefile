@@ -17,7 +17,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 # plotly.js with only the trace types the report pages draw (1.8 MB instead of 4.8 MB: pages
-# open about 1 s sooner), built from the npm registry with the pinned tools/plotly-bundle; without
+# open about 0.7 s sooner), built from the npm registry with the pinned tools/plotly-bundle; without
 # npm, or if the build fails, the pages embed the plotly package's full plotly.min.js instead
 BUNDLE := src/rigcal/report/js/plotly-rigcal.min.js
 BUNDLE_TOOL := tools/plotly-bundle
@@ -26,8 +26,8 @@ $(BUNDLE): $(BUNDLE_TOOL)/package-lock.json $(BUNDLE_TOOL)/entry.js $(BUNDLE_TOO
 	@if command -v npm >/dev/null 2>&1; then \
 	  (cd $(BUNDLE_TOOL) && npm ci --no-audit --no-fund --loglevel=error >/dev/null && npm run --silent build >/dev/null 2>&1) \
 	  && echo "built $@" \
-	  || echo "note: building $@ failed: report.html embeds the full plotly.min.js (opens about 1 s later)"; \
-	else echo "note: npm not found: report.html embeds the full plotly.min.js (opens about 1 s later)"; fi
+	  || echo "note: building $@ failed: report.html embeds the full plotly.min.js (opens about 0.7 s later)"; \
+	else echo "note: npm not found: report.html embeds the full plotly.min.js (opens about 0.7 s later)"; fi
 
 demo: $(STAMP) $(BUNDLE)
 	$(BIN)/rigcal demo --out demo_out

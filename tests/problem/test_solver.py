@@ -314,15 +314,9 @@ def test_constrained_solution_matches_scipy_slsqp(seed):
     sol = solve(problem, step_sigma=TIGHT)
     assert sol.converged, sol.status
     cost, poses = reference_solve(problem)[:2]
-    # the same optimum (SLSQP's central-difference gradients leave it a little short: the
-    # residuals' rounding alone moves where it stops by ~1e-7 of the cost, ~1e-4 m)...
-    assert sol.cost == pytest.approx(cost, rel=1e-6)
+    assert sol.cost == pytest.approx(cost, rel=1e-7)
     dt, dr = _pose_error(sol.poses["b"], poses["b"])
-    assert dt < 5e-4 and dr < 1e-4
-    # ...reached at least as well: never a higher cost, never further from stationarity
-    assert sol.cost <= cost * (1.0 + 1e-9)
-    assert (kkt_violations(problem, sol.poses)["stationarity"]
-            <= max(kkt_violations(problem, poses)["stationarity"], 1e-6))
+    assert dt < 2e-5 and dr < 5e-6
     # without the limits the optimum is elsewhere (the comparison is not trivially met)
     free = solve(dataclasses.replace(problem, limits=()))
     assert free.cost < 0.5 * sol.cost

@@ -51,23 +51,20 @@ RESIDUAL_DIM = {MODEL_POINT: 3, MODEL_RADAR2D: 2, MODEL_CAMERA: 2, MODEL_SURFACE
 def point_in_observer(
     T_W_A: np.ndarray, T_W_B: np.ndarray, points_A: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """x = T_W_B^-1 T_W_A p for batches: T (n, 4, 4) or (1, 4, 4) (one pose for every item),
-    p (n, 3).
+    """x = T_W_B^-1 T_W_A p for batches: T (n, 4, 4), p (n, 3).
 
     Returns x (n, 3), dx/dxi_A (n, 3, 6), dx/dxi_B (n, 3, 6).
     """
-    RBt = np.swapaxes(T_W_B[:, :3, :3], 1, 2)
-    R = RBt @ T_W_A[:, :3, :3]  # R_B_A
-    t = (RBt @ (T_W_A[:, :3, 3] - T_W_B[:, :3, 3])[:, :, None])[:, :, 0]  # t_B_A
-    if R.shape[0] == 1:  # one pair of poses: plain products
-        x = points_A @ R[0].T + t
-    else:
-        x = (R @ points_A[:, :, None])[:, :, 0] + t
-    n = x.shape[0]
-    JA = np.empty((n, 3, 6))
-    JA[:, :, :3] = -R @ hat(points_A)
-    JA[:, :, 3:] = R
-    JB = np.empty((n, 3, 6))
+    RA, tA = T_W_A[:, :3, :3], T_W_A[:, :3, 3]
+    RB, tB = T_W_B[:, :3, :3], T_W_B[:, :3, 3]
+    RBt = np.swapaxes(RB, 1, 2)
+    q = np.einsum("nij,nj->ni", RA, points_A) + tA
+    x = np.einsum("nij,nj->ni", RBt, q - tB)
+    RBtRA = RBt @ RA
+    JA = np.empty(x.shape + (6,))
+    JA[:, :, :3] = -RBtRA @ hat(points_A)
+    JA[:, :, 3:] = RBtRA
+    JB = np.empty(x.shape + (6,))
     JB[:, :, :3] = hat(x)
     JB[:, :, 3:] = -np.eye(3)
     return x, JA, JB

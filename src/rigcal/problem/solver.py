@@ -271,11 +271,6 @@ class _Layout:
             )
             for b in problem.observations
         ]
-        # the pose rows each batch's evaluation gathers: one row when every item of the batch
-        # has the same pose (a pair of sensors), so the residuals multiply by one matrix
-        self.obs_pose_rows = [
-            tuple(i[:1] if i.size and np.all(i == i[0]) else i for i in pair) for pair in self.obs_idx
-        ]
         self.lim_idx = [
             (
                 np.array([self.index[f] for f in b.frame], dtype=int),
@@ -324,8 +319,6 @@ class _Layout:
             self.lim_ib = np.concatenate([ib for _, ib in self.lim_idx])
             self.lim_points = np.concatenate([b.points for b in problem.limits])
             self.lim_max = np.concatenate([b.max_elevation_rad for b in problem.limits])
-            self.lim_rows = tuple(i[:1] if i.size and np.all(i == i[0]) else i
-                                  for i in (self.lim_ia, self.lim_ib))
         self.prior_idx = [np.array([self.index[b] for b in pr.blocks], dtype=int) for pr in problem.priors]
         self.m_obs = sum(b.size * b.dim for b in problem.observations)
         self.m = self.m_obs + sum(b.size for b in problem.limits)
@@ -356,7 +349,7 @@ def _evaluate(problem: Problem, layout: _Layout, T: np.ndarray, loss: str, c: fl
     r_parts, parts = [], []
     raw = []
     cost = 0.0
-    for batch, (ia, ib), slots in zip(problem.observations, layout.obs_pose_rows, layout.obs_scatter):
+    for batch, (ia, ib), slots in zip(problem.observations, layout.obs_idx, layout.obs_scatter):
         if batch.size == 0:
             raw.append(np.zeros((0, batch.dim)))
             continue
@@ -433,7 +426,7 @@ def _constraints(problem: Problem, layout: _Layout, T: np.ndarray, want_jac: boo
         return np.zeros(0), (np.zeros((0, layout.n_free)) if want_jac else None)
     big = 1e6  # shift so the hinge is always active: gives |e| - max and its gradient
     r, JA, JB = elevation_limit_residuals(
-        T[layout.lim_rows[0]], T[layout.lim_rows[1]], layout.lim_points, layout.lim_max - big, 1.0
+        T[layout.lim_ia], T[layout.lim_ib], layout.lim_points, layout.lim_max - big, 1.0
     )
     c = r[:, 0] - big
     if not want_jac:

@@ -141,3 +141,20 @@ def test_calibrating_imports_no_scipy(tmp_path):
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "[]"
+
+
+def test_single_threaded_also_limits_a_blas_loaded_after_its_first_use():
+    # the thread pools are looked up once per process, and again once scipy (its own BLAS) is
+    # imported; every BLAS pool then runs one thread inside the block
+    code = (
+        "from rigcal.problem.numerics import single_threaded\n"
+        "with single_threaded():\n    pass\n"
+        "import scipy.linalg\n"
+        "from threadpoolctl import threadpool_info\n"
+        "with single_threaded():\n"
+        "    pools = [p for p in threadpool_info() if p['user_api'] == 'blas']\n"
+        "print(len(pools), max(p['num_threads'] for p in pools))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    n, most = (int(x) for x in out.split())
+    assert n >= 1 and most == 1

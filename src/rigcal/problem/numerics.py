@@ -20,6 +20,7 @@ Every function is pure: inputs are never modified.
 from __future__ import annotations
 
 import math
+import sys
 from typing import Callable
 
 import numpy as np
@@ -86,17 +87,19 @@ def single_threaded():
     global _THREADPOOLS
     from threadpoolctl import ThreadpoolController
 
-    if _THREADPOOLS is None:
-        _THREADPOOLS = ThreadpoolController()
-    return _THREADPOOLS.limit(limits=1)
+    # scipy brings its own BLAS when it is first imported (large sparse problems): look again
+    scipy_loaded = "scipy" in sys.modules
+    if _THREADPOOLS is None or _THREADPOOLS[1] != scipy_loaded:
+        _THREADPOOLS = (ThreadpoolController(), scipy_loaded)
+    return _THREADPOOLS[0].limit(limits=1)
 
 
 # --- dense linear algebra --------------------------------------------------------------------
 
 
 def spd_solver(M: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
-    """``b -> M^-1 b`` through a Cholesky factor of the symmetric positive definite ``M``;
-    raises ``numpy.linalg.LinAlgError`` when ``M`` is not positive definite."""
+    """``b -> M^-1 b`` for the symmetric positive definite ``M`` (checked by its Cholesky
+    factor); raises ``numpy.linalg.LinAlgError`` when ``M`` is not positive definite."""
     M = np.array(M, dtype=float)  # a copy: the solver keeps it
     L = np.linalg.cholesky(M)
     if not np.all(np.isfinite(L)):

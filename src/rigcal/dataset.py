@@ -174,6 +174,12 @@ class Dataset:
         return tuple(s.name for s in self.sensors)
 
     @cached_property
+    def derived(self) -> dict:
+        """Values computed from this dataset, kept with it (it is immutable): e.g. the
+        comparable pairs' anchors on all boards (:func:`rigcal.problem.pairs.pair_data`)."""
+        return {}
+
+    @cached_property
     def pairs(self) -> tuple[tuple[str, str], ...]:
         """Every comparable sensor pair ``(a, b)`` in dataset order, derived once per dataset
         (two 2D radars share no 3D point, so they are not a pair)."""

@@ -76,8 +76,22 @@ def reflector_points(s: SensorDetections, dataset: Dataset) -> np.ndarray:
 def pair_data(dataset: Dataset, a: str, b: str, boards: np.ndarray | None = None) -> PairData | None:
     """Anchors for sensors ``a`` and ``b`` on their common valid boards; None if not comparable.
 
-    ``boards`` optionally restricts to a subset of board indices.
+    ``boards`` optionally restricts to a subset of board indices. On all boards the result is
+    computed once per dataset (its arrays read-only).
     """
+    if boards is None:
+        key = ("pair_data", a, b)
+        if key not in dataset.derived:
+            found = _pair_data(dataset, a, b, None)
+            if found is not None:
+                for arr in (found.points, found.measured, found.board):
+                    arr.setflags(write=False)
+            dataset.derived[key] = found
+        return dataset.derived[key]
+    return _pair_data(dataset, a, b, boards)
+
+
+def _pair_data(dataset: Dataset, a: str, b: str, boards: np.ndarray | None) -> PairData | None:
     sa, sb = dataset.sensor(a), dataset.sensor(b)
     if not comparable(sa, sb):
         return None

@@ -67,6 +67,12 @@ def test_the_original_tools_fcpe_result_is_a_higher_cost_local_minimum(real_data
     for pair, mm in zip(PAIRS, (15.25, 14.27, 21.11)):
         assert rmse[pair] == pytest.approx(mm * MM, abs=0.005 * MM), pair
     assert best.cost < sol.cost
+    # the RMSE alone (what the studies use) is the same numbers, on every board or a subset
+    from rigcal.problem.evaluate import pair_rmses
+
+    assert pair_rmses(real_dataset, sol.poses) == rmse
+    some = np.arange(0, real_dataset.num_boards, 3)
+    assert pair_rmses(real_dataset, sol.poses, some) == evaluate_pairs(real_dataset, sol.poses, some)[0]
 
 
 def test_pse_converges_with_estimated_noise(real_calibration):

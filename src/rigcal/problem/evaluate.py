@@ -4,7 +4,7 @@ projected reflector with the radar's (x, y))."""
 
 from __future__ import annotations
 
-from typing import Mapping
+from typing import Iterator, Mapping
 
 import numpy as np
 
@@ -38,15 +38,27 @@ def rmse(pair: PairData, poses: Mapping[str, np.ndarray]) -> float:
     return float(np.sqrt(np.mean(e**2))) if e.size else float("nan")
 
 
+def _shared_pairs(dataset: Dataset, boards: np.ndarray | None) -> Iterator[PairData]:
+    """Every comparable pair that shares a board (of ``boards``, if given)."""
+    for a, b in all_pairs(dataset):
+        p = pair_data(dataset, a, b, boards)
+        if p is not None and p.num_boards:
+            yield p
+
+
+def pair_rmses(
+    dataset: Dataset, poses: Mapping[str, np.ndarray], boards: np.ndarray | None = None
+) -> dict[str, float]:
+    """The RMSE of :func:`evaluate_pairs` alone (no per-board errors)."""
+    return {p.label: rmse(p, poses) for p in _shared_pairs(dataset, boards)}
+
+
 def evaluate_pairs(
     dataset: Dataset, poses: Mapping[str, np.ndarray], boards: np.ndarray | None = None
 ) -> tuple[dict[str, float], dict[str, dict[int, float]]]:
     """RMSE and per-board errors for every comparable pair that shares a board."""
     rm, per = {}, {}
-    for a, b in all_pairs(dataset):
-        p = pair_data(dataset, a, b, boards)
-        if p is None or p.num_boards == 0:
-            continue
+    for p in _shared_pairs(dataset, boards):
         rm[p.label] = rmse(p, poses)
         per[p.label] = board_errors(p, poses)
     return rm, per

@@ -25,8 +25,7 @@ import numpy as np
 from rigcal.dataset import Dataset
 from rigcal.errors import RigcalError
 from rigcal.problem.calibrate import CalibrationOptions, calibrate_poses
-from rigcal.problem.evaluate import rmse
-from rigcal.problem.pairs import all_pairs, pair_data
+from rigcal.problem.evaluate import pair_rmses
 
 #: the paper's Table III (median +- MAD [mm]): configuration -> (l2c, l2r, c2r)
 PAPER_TABLE_III = {
@@ -88,13 +87,7 @@ def _median_mad(values: Sequence[float]) -> tuple[float, float]:
 
 
 def _rmse_mm(dataset: Dataset, poses, boards: np.ndarray | None) -> dict[str, float]:
-    # evaluate_pairs' RMSE, without its per-board errors
-    out = {}
-    for a, b in all_pairs(dataset):
-        p = pair_data(dataset, a, b, boards)
-        if p is not None and p.num_boards:
-            out[p.label] = 1000.0 * rmse(p, poses)
-    return out
+    return {k: 1000.0 * v for k, v in pair_rmses(dataset, poses, boards).items()}
 
 
 def draw_sets(num_boards: int, k: int, draws: int, seed: int | Sequence[int]) -> list[np.ndarray]:

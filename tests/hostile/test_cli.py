@@ -269,3 +269,45 @@ def test_interrupt_leaves_nothing_half_written(tmp_path, sig, code, word):
     assert word in err and "Traceback" not in err, err
     assert not out.exists()
     assert not list(tmp_path.iterdir()), list(tmp_path.iterdir())
+
+
+# A C extension whose import is interrupted reports "ImportError: initialization failed" in place
+# of the KeyboardInterrupt / Terminated the handler raised (seen with matplotlib's _backend_agg
+# under SIGTERM). This child sends itself the signal inside such a wrapper, deterministically.
+_SWALLOWED = """
+import os, signal, sys, time
+from rigcal.cli import report
+
+def run(args, console):
+    try:
+        os.kill(os.getpid(), signal.{sig})
+        time.sleep(10)
+    except BaseException as exc:
+        raise ImportError("initialization failed") from exc
+    return 0
+
+report.run = run
+sys.argv = ["rigcal", "report", "{folder}"]
+from rigcal.cli.main import entry
+entry()
+"""
+
+
+@pytest.mark.parametrize("sig, code, word", [("SIGINT", 130, "interrupted"), ("SIGTERM", 143, "terminated")])
+def test_interrupt_turned_into_another_exception_is_still_an_interrupt(tmp_path, sig, code, word):
+    script = _SWALLOWED.format(sig=sig, folder=tmp_path)
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, timeout=60)
+    err = done.stderr.decode()
+    assert done.returncode == code, err
+    assert word in err and "Traceback" not in err and "ImportError" not in err, err
+
+
+def test_internal_error_without_a_signal_still_shows_its_traceback(tmp_path):
+    """The rule above applies only once a signal was received: a real bug is not hidden."""
+    script = _SWALLOWED.format(sig="SIGTERM", folder=tmp_path).replace(
+        "os.kill(os.getpid(), signal.SIGTERM)", "raise ValueError('a bug')")
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, timeout=60)
+    err = done.stderr.decode()
+    assert done.returncode == 1, err
+    assert "Traceback" in err and "ImportError: initialization failed" in err, err
+

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import signal
 import sys
 from typing import Sequence
 
@@ -92,27 +93,49 @@ def run(argv: Sequence[str] | None = None) -> int:
         sys.stderr.write(f"rigcal: error: {exc}\n")
         return 1
     except KeyboardInterrupt:
-        sys.stderr.write("\nrigcal: interrupted (nothing half-written is left)\n")
-        return EXIT_INTERRUPTED
+        return _interrupted(signal.SIGINT)
     except Terminated:
-        sys.stderr.write("rigcal: terminated (nothing half-written is left)\n")
-        return EXIT_TERMINATED
+        return _interrupted(signal.SIGTERM)
     except MemoryError:
         sys.stderr.write(f"rigcal: error: out of memory in '{args.command}' (an input too large?)\n")
         return 1
     except RecursionError:
         sys.stderr.write(f"rigcal: error: input nested too deeply for '{args.command}'\n")
         return 1
+    except Exception:
+        # The interrupt can arrive inside code that turns any exception into its own: a C
+        # extension being imported reports "ImportError: initialization failed". Once a signal
+        # has been received, whatever surfaces is the interrupt, not an internal error.
+        if _signals_received:
+            return _interrupted(_signals_received[0])
+        raise
 
 
-def _raise_terminated(signum, frame) -> None:
+#: the signals the handlers of :func:`entry` have received, in order
+_signals_received: list[int] = []
+
+
+def _interrupted(signum: int) -> int:
+    """The one line and the exit code of an interrupt (SIGINT) or a termination (SIGTERM)."""
+    if signum == signal.SIGINT:
+        sys.stderr.write("\nrigcal: interrupted (nothing half-written is left)\n")
+        return EXIT_INTERRUPTED
+    sys.stderr.write("rigcal: terminated (nothing half-written is left)\n")
+    return EXIT_TERMINATED
+
+
+def _on_signal(signum, frame) -> None:
+    """Remember the signal, then raise it in the main thread as KeyboardInterrupt / Terminated."""
+    _signals_received.append(signum)
+    if signum == signal.SIGINT:
+        raise KeyboardInterrupt
     raise Terminated()
 
 
 def entry() -> None:
-    import signal
-
-    signal.signal(signal.SIGTERM, _raise_terminated)
+    _signals_received.clear()
+    signal.signal(signal.SIGINT, _on_signal)
+    signal.signal(signal.SIGTERM, _on_signal)
     try:
         code = run()
     except KeyboardInterrupt:  # Ctrl-C while the arguments were parsed

@@ -251,10 +251,11 @@ def _start(args: list[str]) -> subprocess.Popen:
     (signal.SIGINT, 130, "interrupted"), (signal.SIGTERM, 143, "terminated"),
 ])
 def test_interrupt_leaves_nothing_half_written(tmp_path, sig, code, word):
-    """The detections-only demo writes several folders over ~10 s; interrupted while it runs,
-    it exits 130/143 with one line, no traceback and no demo folder (whole or partial)."""
+    """The detections-only demo on 60 boards writes several folders over ~5 s; interrupted
+    while it runs, it exits 130/143 with one line, no traceback and no demo folder (whole or
+    partial)."""
     out = tmp_path / "demo"
-    proc = _start(["demo", "--detections-only", "--out", out])
+    proc = _start(["demo", "--detections-only", "--boards", "60", "--out", out])
     deadline = time.monotonic() + 60
     # wait until it is writing (the staging folder appears), then interrupt
     while time.monotonic() < deadline and not any(
@@ -310,4 +311,39 @@ def test_internal_error_without_a_signal_still_shows_its_traceback(tmp_path):
     err = done.stderr.decode()
     assert done.returncode == 1, err
     assert "Traceback" in err and "ImportError: initialization failed" in err, err
+
+
+_SWALLOWED_THEN_WRITES = """
+import os, signal, sys, time
+from rigcal.cli import report
+from rigcal.io.atomic import atomic_write_text, staged_folder
+
+def run(args, console):
+    try:
+        os.kill(os.getpid(), signal.{sig})
+        time.sleep(10)
+    except BaseException:
+        pass  # a library that drops the interrupt
+    with staged_folder("{out}") as stage:
+        atomic_write_text(stage / "calibration.yaml", "x")
+    return 0
+
+report.run = run
+sys.argv = ["rigcal", "report", "{out}"]
+from rigcal.cli.main import entry
+entry()
+"""
+
+
+@pytest.mark.parametrize("sig, code, word", [("SIGINT", 130, "interrupted"), ("SIGTERM", 143, "terminated")])
+def test_swallowed_interrupt_still_publishes_nothing(tmp_path, sig, code, word):
+    """A weakref callback or a library's ``except`` can drop the handler's exception; the run
+    goes on, but its output is not published and it still ends as interrupted."""
+    out = tmp_path / "out"
+    script = _SWALLOWED_THEN_WRITES.format(sig=sig, out=out)
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, timeout=60)
+    err = done.stderr.decode()
+    assert done.returncode == code, err
+    assert word in err and "Traceback" not in err, err
+    assert not list(tmp_path.iterdir()), list(tmp_path.iterdir())
 

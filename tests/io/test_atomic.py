@@ -8,9 +8,10 @@ import stat
 
 import pytest
 
+from rigcal import interrupts
 from rigcal.errors import InputError
 from rigcal.io import atomic
-from rigcal.io.atomic import atomic_write_bytes, atomic_write_text
+from rigcal.io.atomic import atomic_write_bytes, atomic_write_text, staged_folder
 
 
 def test_text_creates_parents_and_returns_path(tmp_path):
@@ -177,3 +178,37 @@ def test_a_stage_is_synced_once_not_after_every_file(tmp_path, monkeypatch):
     synced.clear()
     atomic.atomic_write_text(tmp_path / "alone.txt", "y")
     assert synced == [tmp_path.name]
+
+
+@pytest.fixture
+def interrupt():
+    """Records an interrupt as the command line's signal handler does (forgotten afterwards)."""
+    yield lambda: interrupts.request(KeyboardInterrupt)
+    interrupts.clear()
+
+
+def test_a_recorded_interrupt_stops_a_file_commit(tmp_path, interrupt):
+    """An interrupt that some code swallowed still keeps the new file from replacing the old."""
+    target = tmp_path / "a.yaml"
+    atomic_write_text(target, "old")
+    interrupt()
+    with pytest.raises(KeyboardInterrupt):
+        atomic_write_text(target, "new")
+    assert target.read_text() == "old"
+    assert [p.name for p in tmp_path.iterdir()] == ["a.yaml"]
+
+
+def test_a_recorded_interrupt_stops_a_folder_commit(tmp_path, interrupt):
+    out = tmp_path / "out"
+    with pytest.raises(KeyboardInterrupt):
+        with staged_folder(out) as stage:
+            (stage / "calibration.yaml").write_text("x")
+            interrupt()
+    assert not list(tmp_path.iterdir())
+
+
+def test_without_an_interrupt_commits_go_ahead(tmp_path):
+    assert interrupts.requested() is None
+    with staged_folder(tmp_path / "out") as stage:
+        atomic_write_text(stage / "a.txt", "a")
+    assert (tmp_path / "out" / "a.txt").read_text() == "a"

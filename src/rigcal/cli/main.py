@@ -21,7 +21,7 @@ import signal
 import sys
 from typing import Sequence
 
-from rigcal import __version__
+from rigcal import __version__, interrupts
 from rigcal.cli import absolute, calibrate, demo, detect, export, mocap, report, study, urdf
 from rigcal.cli.codes import (
     EXIT_CODES_HELP,
@@ -88,7 +88,10 @@ def run(argv: Sequence[str] | None = None) -> int:
         with warnings.catch_warnings():
             if not args.verbose:
                 warnings.simplefilter("ignore", RuntimeWarning)
-            return args.func(args, console)
+            code = args.func(args, console)
+        if _signals_received:  # the interrupt was swallowed, yet the command finished
+            return _interrupted(_signals_received[0])
+        return code
     except RigcalError as exc:
         sys.stderr.write(f"rigcal: error: {exc}\n")
         return 1
@@ -125,15 +128,26 @@ def _interrupted(signum: int) -> int:
 
 
 def _on_signal(signum, frame) -> None:
-    """Remember the signal, then raise it in the main thread as KeyboardInterrupt / Terminated."""
+    """Remember the signal (here and for the output commits, :mod:`rigcal.interrupts`), then
+    raise it in the main thread as KeyboardInterrupt / Terminated."""
+    exc_type = KeyboardInterrupt if signum == signal.SIGINT else Terminated
     _signals_received.append(signum)
-    if signum == signal.SIGINT:
-        raise KeyboardInterrupt
-    raise Terminated()
+    interrupts.request(exc_type)
+    raise exc_type()
+
+
+def _unraisable(hook_args) -> None:
+    """An interrupt raised where Python can only ignore it (a weakref callback, ``__del__``) is
+    not printed as a traceback: it was recorded, and the run stops at its next commit."""
+    if isinstance(hook_args.exc_value, (KeyboardInterrupt, Terminated)) and _signals_received:
+        return
+    sys.__unraisablehook__(hook_args)
 
 
 def entry() -> None:
     _signals_received.clear()
+    interrupts.clear()
+    sys.unraisablehook = _unraisable
     signal.signal(signal.SIGINT, _on_signal)
     signal.signal(signal.SIGTERM, _on_signal)
     try:

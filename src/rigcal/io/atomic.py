@@ -19,6 +19,7 @@ from contextlib import contextmanager
 from contextvars import ContextVar
 from pathlib import Path
 
+from rigcal import interrupts
 from rigcal.errors import InputError
 from rigcal.io.limits import path_stat
 
@@ -71,6 +72,7 @@ def atomic_write_bytes(path: str | os.PathLike[str],
                 os.fsync(fh.fileno())
         if mode is not None:
             os.chmod(tmp, mode)
+        interrupts.raise_if_requested()
         os.replace(tmp, target)
     except BaseException as exc:
         try:
@@ -215,6 +217,7 @@ def staged_folder(path: str | os.PathLike[str]) -> Iterator[Path]:
         yield stage
         mark_output(stage)
         _fsync_directory(stage)
+        interrupts.raise_if_requested()
         _publish(stage, target)
     except BaseException as exc:
         _STAGES.reset(token)

@@ -55,6 +55,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
+from rigcal import interrupts
 from rigcal.errors import InputError
 from rigcal.geometry.se3 import as_rigid, from_rt, invert, transform_points
 from rigcal.geometry.so3 import matrix_from_rpy, so3_exp, so3_log
@@ -419,6 +420,7 @@ def _write_bag(path: Path, msgs: list[tuple[int, str, str, Any]], store: Any) ->
                 if topic not in conns:
                     conns[topic] = writer.add_connection(topic, msgtype, typestore=store)
                 writer.write(conns[topic], t_ns, store.serialize_ros1(msg, msgtype))
+        interrupts.raise_if_requested()
         os.replace(tmp, path)
     except InputError:
         raise

@@ -42,6 +42,7 @@ from typing import Any, Iterable, Iterator, Mapping, Sequence
 
 import numpy as np
 
+from rigcal import interrupts
 from rigcal.dataset import SensorKind
 from rigcal.errors import InputError
 from rigcal.io.limits import os_error_text
@@ -620,6 +621,7 @@ def write_recording(
 
 def _replace(new: Path, target: Path) -> None:
     """Move ``new`` to ``target``; an existing target (file or directory) is swapped out."""
+    interrupts.raise_if_requested()
     if target.exists() and (target.is_dir() or new.is_dir()):
         old = target.parent / f".{target.name}.{secrets.token_hex(6)}.old"
         os.replace(target, old)

@@ -10,12 +10,10 @@ import pytest
 
 @pytest.fixture(scope="session")
 def dask_cluster():
-    distributed = pytest.importorskip("distributed")
-    from rigcal.study.scale import NO_HTTP_PORT
+    pytest.importorskip("distributed")
+    from rigcal.study.scale import local_cluster
 
     for name in ("distributed", "bokeh", "tornado"):
         logging.getLogger(name).setLevel(logging.ERROR)
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                                  dashboard_address=None, silence_logs=logging.ERROR,
-                                  scheduler_kwargs=NO_HTTP_PORT) as cluster:
+    with local_cluster(2) as cluster:
         yield cluster

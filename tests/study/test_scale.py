@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import operator
+import os
 from pathlib import Path
 
 import numpy as np
@@ -12,7 +13,7 @@ import pytest
 from rigcal.cli.main import run
 from rigcal.io.dataset.manifest import load_manifest
 from rigcal.study import prius
-from rigcal.study.scale import MAX_CHUNK, Runner, chunk_size, task_runner
+from rigcal.study.scale import MAX_CHUNK, Runner, chunk_size, task_runner, worker_environment
 
 MANIFEST = Path(__file__).resolve().parents[2] / "examples" / "prius" / "rig.yaml"
 SHARED = Path(__file__).resolve().parents[3] / "shared" / "data" / "tudelft_prius"
@@ -48,6 +49,16 @@ def test_many_items_run_in_chunks_in_item_order(runner):
     out = runner.map(operator.mul, list(range(n)), shared=3, progress=lambda d, t: seen.append(d))
     assert out == [3 * i for i in range(n)]
     assert seen[0] == 0 and seen[-1] == n and seen == sorted(seen) and len(seen) == 1 + -(-n // 3)
+
+
+def test_local_workers_run_blas_single_threaded_without_a_malloc_trim_threshold(runner):
+    """The cluster's workers (tests/conftest.py builds it as task_runner does) get Dask's
+    pre-spawn environment without MALLOC_TRIM_THRESHOLD_ (see worker_environment)."""
+    names = ["MALLOC_TRIM_THRESHOLD_", "OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS"]
+    # os.getenv(name, default) runs in the worker: its environment, not this process's
+    seen = [runner.map(os.getenv, ["unset"], shared=name)[0] for name in names]
+    assert seen == ["unset", "1", "1"]
+    assert "MALLOC_TRIM_THRESHOLD_" not in worker_environment()
 
 
 def test_a_failing_task_raises_here(runner):

@@ -157,7 +157,27 @@ def entry() -> None:
         code = EXIT_INTERRUPTED
     except Terminated:
         code = EXIT_TERMINATED
+    if _signals_received:
+        _exit_now(code)
     sys.exit(code)
+
+
+def _exit_now(code: int) -> None:
+    """End an interrupted run without the interpreter's finalization. Its outputs were removed
+    or left whole on the way out (staged folders, atomic files, the Dask cluster in its
+    ``with``); what finalization would still run are the teardowns of extension modules, and an
+    interrupt that landed while one was being imported can leave it half initialised - its
+    teardown then aborts the process (seen once in CI: "Fatal Python error: PyThreadState_Get"
+    after "rigcal: interrupted", exit -6 instead of 130)."""
+    import os
+
+    logging.shutdown()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    os._exit(code)
 
 
 if __name__ == "__main__":  # pragma: no cover

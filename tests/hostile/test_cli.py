@@ -277,9 +277,10 @@ def test_interrupt_leaves_nothing_half_written(tmp_path, sig, code, word):
 # or drop it (a weakref callback, a library's except). The child runs `rigcal report` with its
 # command replaced by one that raises {trigger} inside such a wrapper, then may write output.
 _CHILD = """
-import os, signal, sys, time
+import atexit, os, signal, sys, time
 from rigcal.cli import report
 from rigcal.io.atomic import atomic_write_text, staged_folder
+{setup}
 
 def run(args, console):
     try:
@@ -300,8 +301,8 @@ _REWRITE = 'raise ImportError("initialization failed") from exc'
 _DROP = "pass"
 
 
-def _child(tmp_path: Path, trigger: str, handler: str) -> tuple[int, str]:
-    script = _CHILD.format(trigger=trigger, handler=handler, out=tmp_path / "out")
+def _child(tmp_path: Path, trigger: str, handler: str, setup: str = "") -> tuple[int, str]:
+    script = _CHILD.format(trigger=trigger, handler=handler, out=tmp_path / "out", setup=setup)
     done = subprocess.run([sys.executable, "-c", script], capture_output=True, timeout=60)
     return done.returncode, done.stderr.decode()
 
@@ -332,3 +333,13 @@ def test_swallowed_interrupt_still_publishes_nothing(tmp_path, sig, code, word):
     assert rc == code, err
     assert word in err and "Traceback" not in err, err
     assert not list(tmp_path.iterdir()), list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("sig, code, word", SIGNALS)
+def test_interrupted_run_skips_the_interpreters_teardown(tmp_path, sig, code, word):
+    """A teardown that would crash (an extension module interrupted mid-import; here an exit
+    handler that aborts) does not turn the interrupt's exit code into a crash."""
+    rc, err = _child(tmp_path, f"os.kill(os.getpid(), signal.{sig})", "raise", setup="atexit.register(os.abort)")
+    assert rc == code, err
+    assert word in err and "Traceback" not in err, err
+

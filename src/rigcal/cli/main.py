@@ -89,16 +89,16 @@ def run(argv: Sequence[str] | None = None) -> int:
             if not args.verbose:
                 warnings.simplefilter("ignore", RuntimeWarning)
             code = args.func(args, console)
-        if _signals_received:  # the interrupt was swallowed, yet the command finished
-            return _interrupted(_signals_received[0])
+        if interrupts.requested():  # the interrupt was swallowed, yet the command finished
+            return _interrupted(interrupts.requested())
         return code
     except RigcalError as exc:
         sys.stderr.write(f"rigcal: error: {exc}\n")
         return 1
     except KeyboardInterrupt:
-        return _interrupted(signal.SIGINT)
+        return _interrupted(KeyboardInterrupt)
     except Terminated:
-        return _interrupted(signal.SIGTERM)
+        return _interrupted(Terminated)
     except MemoryError:
         sys.stderr.write(f"rigcal: error: out of memory in '{args.command}' (an input too large?)\n")
         return 1
@@ -109,18 +109,15 @@ def run(argv: Sequence[str] | None = None) -> int:
         # The interrupt can arrive inside code that turns any exception into its own: a C
         # extension being imported reports "ImportError: initialization failed". Once a signal
         # has been received, whatever surfaces is the interrupt, not an internal error.
-        if _signals_received:
-            return _interrupted(_signals_received[0])
+        if interrupts.requested():
+            return _interrupted(interrupts.requested())
         raise
 
 
-#: the signals the handlers of :func:`entry` have received, in order
-_signals_received: list[int] = []
-
-
-def _interrupted(signum: int) -> int:
-    """The one line and the exit code of an interrupt (SIGINT) or a termination (SIGTERM)."""
-    if signum == signal.SIGINT:
+def _interrupted(exc_type: type[BaseException]) -> int:
+    """The one line and the exit code of an interrupt (KeyboardInterrupt, from SIGINT) or a
+    termination (Terminated, from SIGTERM)."""
+    if exc_type is KeyboardInterrupt:
         sys.stderr.write("\nrigcal: interrupted (nothing half-written is left)\n")
         return EXIT_INTERRUPTED
     sys.stderr.write("rigcal: terminated (nothing half-written is left)\n")
@@ -128,10 +125,9 @@ def _interrupted(signum: int) -> int:
 
 
 def _on_signal(signum, frame) -> None:
-    """Remember the signal (here and for the output commits, :mod:`rigcal.interrupts`), then
+    """Record the signal (:mod:`rigcal.interrupts`: the output commits check it too), then
     raise it in the main thread as KeyboardInterrupt / Terminated."""
     exc_type = KeyboardInterrupt if signum == signal.SIGINT else Terminated
-    _signals_received.append(signum)
     interrupts.request(exc_type)
     raise exc_type()
 
@@ -139,13 +135,12 @@ def _on_signal(signum, frame) -> None:
 def _unraisable(hook_args) -> None:
     """An interrupt raised where Python can only ignore it (a weakref callback, ``__del__``) is
     not printed as a traceback: it was recorded, and the run stops at its next commit."""
-    if isinstance(hook_args.exc_value, (KeyboardInterrupt, Terminated)) and _signals_received:
+    if isinstance(hook_args.exc_value, (KeyboardInterrupt, Terminated)) and interrupts.requested():
         return
     sys.__unraisablehook__(hook_args)
 
 
 def entry() -> None:
-    _signals_received.clear()
     interrupts.clear()
     sys.unraisablehook = _unraisable
     signal.signal(signal.SIGINT, _on_signal)
@@ -157,7 +152,7 @@ def entry() -> None:
         code = EXIT_INTERRUPTED
     except Terminated:
         code = EXIT_TERMINATED
-    if _signals_received:
+    if interrupts.requested():
         _exit_now(code)
     sys.exit(code)
 

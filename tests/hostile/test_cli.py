@@ -247,9 +247,11 @@ def _start(args: list[str]) -> subprocess.Popen:
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
 
 
-@pytest.mark.parametrize("sig, code, word", [
-    (signal.SIGINT, 130, "interrupted"), (signal.SIGTERM, 143, "terminated"),
-])
+#: the signals the CLI handles: name, exit code, the word of its one line
+SIGNALS = [("SIGINT", 130, "interrupted"), ("SIGTERM", 143, "terminated")]
+
+
+@pytest.mark.parametrize("sig, code, word", SIGNALS)
 def test_interrupt_leaves_nothing_half_written(tmp_path, sig, code, word):
     """The detections-only demo on 60 boards writes several folders over ~5 s; interrupted
     while it runs, it exits 130/143 with one line, no traceback and no demo folder (whole or
@@ -263,7 +265,7 @@ def test_interrupt_leaves_nothing_half_written(tmp_path, sig, code, word):
     ):
         time.sleep(0.05)
     time.sleep(0.5)
-    proc.send_signal(sig)
+    proc.send_signal(getattr(signal, sig))
     _, err = proc.communicate(timeout=60)
     err = err.decode()
     assert proc.returncode == code, err
@@ -307,8 +309,6 @@ def _child(tmp_path: Path, trigger: str, handler: str, setup: str = "") -> tuple
     return done.returncode, done.stderr.decode()
 
 
-SIGNALS = [("SIGINT", 130, "interrupted"), ("SIGTERM", 143, "terminated")]
-
 
 @pytest.mark.parametrize("sig, code, word", SIGNALS)
 def test_interrupt_turned_into_another_exception_is_still_an_interrupt(tmp_path, sig, code, word):
@@ -342,4 +342,3 @@ def test_interrupted_run_skips_the_interpreters_teardown(tmp_path, sig, code, wo
     rc, err = _child(tmp_path, f"os.kill(os.getpid(), signal.{sig})", "raise", setup="atexit.register(os.abort)")
     assert rc == code, err
     assert word in err and "Traceback" not in err, err
-

@@ -131,6 +131,12 @@ def _looks_like_xml(text: str) -> bool:
     return text.lstrip("\ufeff \t\r\n").startswith("<")
 
 
+def initial_is_urdf(path: str | os.PathLike[str]) -> bool:
+    """Whether an ``--initial`` file is a URDF (``.urdf``/``.xml``, or text starting with ``<``)."""
+    p = Path(path)
+    return p.suffix.lower() in (".urdf", ".xml") or _looks_like_xml(read_text(p, "initial guesses"))
+
+
 def _sensor_fields(sensor: Any) -> tuple[str, str | None, str]:
     """(name, kind, frame_id) of a rig sensor: a SensorDetections-like object or a tuple."""
     if isinstance(sensor, (tuple, list)):
@@ -198,7 +204,7 @@ def read_initial_poses(
     """
     p = Path(path)
     source = str(p)
-    if p.suffix.lower() in (".urdf", ".xml") or _looks_like_xml(read_text(p, "initial guesses")):
+    if initial_is_urdf(p):
         from rigcal.io.results.urdf import read_urdf
 
         if sensors is None:

@@ -121,9 +121,10 @@ def camchain_text(
     for i, (name, frame, T) in enumerate(cameras):
         src = sources.get(name) or sources.get(frame)
         if src is not None:
-            _, model = select_camera(read_camera_file(src.path), str(src.path), camera=src.camera,
-                                     names=(name, frame), topic=src.topic)
-            topic = src.topic
+            chain = read_camera_file(src.path)
+            key, model = select_camera(chain, str(src.path), camera=src.camera,
+                                       names=(name, frame), topic=src.topic)
+            topic = src.topic or chain.topics.get(key)
         else:
             own = [(p, c) for p, c in chains.items() if name in c.cameras or frame in c.cameras]
             if own:

@@ -14,8 +14,6 @@ import yaml
 from rigcal.absolute.pipeline import absolute_calibration
 from rigcal.dataset import SensorKind
 from rigcal.errors import InputError
-from rigcal.geometry import from_rt
-from rigcal.geometry.so3 import matrix_from_rpy
 from rigcal.io.results.absolute import (
     ABSOLUTE_JSON_NAME,
     ABSOLUTE_YAML_NAME,

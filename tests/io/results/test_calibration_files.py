@@ -167,3 +167,12 @@ def test_a_mocap_calibration_yaml_is_relative_to_the_recorded_robot_frame():
     doc["mode"] = "fcpe"
     with pytest.raises(InputError, match=r"reference 'robot' is not one of the sensors"):
         parse_calibration_transforms(yaml.safe_dump(doc), "cal.yaml")
+
+
+def test_batch_refuses_a_urdf_as_initial_guesses(robot, tmp_path, capsys):
+    for d in ("car01", "car02"):
+        (tmp_path / d).mkdir()
+    assert run(["calibrate", "--batch", str(tmp_path / "car01"), str(tmp_path / "car02"),
+                "--initial", str(robot), "--out", str(tmp_path / "out")]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "a URDF needs one rig's sensors" in err

@@ -26,7 +26,6 @@ import pytest
 import yaml
 
 from rigcal.cli.main import run
-from rigcal.dataset import SensorKind
 from rigcal.io.dataset.manifest import write_dataset
 from rigcal.sim import R_BODY_OPTICAL
 from rigcal.sim.rig import SimSensor, make_rig_placements, prius_like_rig, simulate

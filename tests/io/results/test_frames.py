@@ -111,7 +111,8 @@ def test_a_camera_with_a_separate_optical_link_is_published_with_it(frame):
         assert len(warnings) == 1 and "cam_optical_frame" in warnings[0] and "disagrees" in warnings[0]
     # the 120 deg that the old writers got wrong: optical pose published as the body link
     wrong = plan_frames(_cal({frame: ("camera", T)})).T_root(frame)
-    angle = math.degrees(np.arccos((np.trace(wrong[:3, :3].T @ plan.T_root(frame)[:3, :3]) - 1) / 2))
+    cos = (np.trace(wrong[:3, :3].T @ plan.T_root(frame)[:3, :3]) - 1) / 2
+    angle = math.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
     if frame == "cam_link":
         assert angle == pytest.approx(120.0, abs=1e-9)
 

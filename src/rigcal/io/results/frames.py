@@ -53,10 +53,15 @@ __all__ = [
     "FramePlan",
     "SensorFrame",
     "StaticTransform",
+    "camera_frames_without_urdf",
+    "edges_of",
     "frames_block",
     "plan_frames",
+    "plan_with_checks",
     "quaternion_xyzw",
     "recorded_frames",
+    "resolve_in_urdf",
+    "transform_entry",
 ]
 
 #: REP 103: a camera's optical frame (x right, y down, z forward) in its body-convention link
@@ -148,11 +153,6 @@ class FramePlan:
             current = edge.parent
         return T
 
-    def measured(self) -> dict[str, np.ndarray]:
-        """``{measured frame: T_root_measured}`` of every calibrated frame (reference included)."""
-        frames = [self.reference] + list(self.sensors)
-        return {s.measured: self.T_root(s.measured) for s in frames}
-
     def sensor_frame(self, frame_id: str) -> SensorFrame:
         for s in (self.reference, *self.sensors):
             if s.frame_id == frame_id:
@@ -193,7 +193,7 @@ def resolve_in_urdf(urdf: Any, sensor: str, kind: str | None, frame_id: str) -> 
     if frame_id not in urdf.links:
         joint = urdf.joints.get(frame_id)
         if joint is not None:  # a joint's name: its child link
-            return _plain(sensor, kind, joint.child, True), None
+            return SensorFrame(sensor, kind, frame_id, joint.child, joint.child, _IDENTITY, True), None
         return _plain(sensor, kind, frame_id, False), None
     carrier = urdf.joint_to(frame_id)
     if kind in ("camera", None) and _is_optical_joint(carrier):

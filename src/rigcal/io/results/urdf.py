@@ -816,7 +816,7 @@ def update_urdf_text(
 
 #: REP 103: the optical frame's fixed rotation in its body-convention camera link (decided in
 #: :mod:`rigcal.io.results.frames`, the one place for the frame contract).
-from rigcal.io.results.frames import OPTICAL_RPY  # noqa: E402
+from rigcal.io.results.frames import OPTICAL_RPY  # noqa: E402, F401  (re-exported)
 
 
 @dataclass(frozen=True)

@@ -172,6 +172,7 @@ def run(args, console) -> int:
         raise InputError("no input: give a rig.yaml manifest or --lidar/--camera/--radar files")
     if args.ignore:
         dataset = dataset.with_excluded(read_ignore_file(args.ignore, dataset))
+    urdf = initial_urdf(args)
     result = calibrate(dataset, options_from(args, dataset))
     if result.flagged and not args.force:
         summary(result, console)
@@ -179,7 +180,7 @@ def run(args, console) -> int:
     # raw data: the lidar scans on the camera images, for the report
     raw = raw_images(args.manifest, args.rig, detection, result) if detection is not None else None
     with staged_folder(args.out) as stage:
-        write_calibration_set(result, dataset, stage, raw, urdf=initial_urdf(args))
+        write_calibration_set(result, dataset, stage, raw, urdf=urdf)
         if args.plot:
             from rigcal.report.plot import plot_calibration
 
@@ -187,6 +188,12 @@ def run(args, console) -> int:
     if args.json:
         sys.stdout.write(result_to_json_text(result) + "\n")
     summary(result, console)
+    if urdf is None:  # calibration.launch names cameras by rule 2 of the frame contract
+        from rigcal.io.results.calibration import calibration_transforms
+        from rigcal.io.results.frames import plan_with_checks
+
+        for w in plan_with_checks(calibration_transforms(result))[1]:
+            console.print(f"[yellow]warning:[/yellow] {w}")
     console.print(f"results written to {args.out}/" + (" (FLAGGED, written with --force)" if result.flagged else ""))
     return EXIT_FLAGGED if result.flagged else 0
 

@@ -459,7 +459,7 @@ def plan_with_checks(cal: Any, urdf: Any = None, body_link: str | None = None) -
             warnings.append(
                 f"{who}: frame '{s.frame_id}' is published as the camera's optical frame (x right, "
                 f"y down, z forward); if the robot's '{s.frame_id}' follows the body convention (x "
-                "forward) with a separate optical child, give the robot's URDF (--urdf) so the "
-                "optical child gets this pose"
+                "forward) with a separate optical child, give the robot's URDF (rigcal export "
+                "--urdf, or calibrate --initial) so the optical child gets this pose"
             )
     return plan, warnings

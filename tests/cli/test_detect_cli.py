@@ -19,7 +19,7 @@ sensors:
 """
 
 
-def _radar_bag(path, placements=4, rcs=15.0):
+def _radar_bag(path, placements=4, rcs=15.0, frame_ids=None):
     rng = np.random.default_rng(0)
     frames = {"/r1": [], "/r2": []}
     t = 1.0
@@ -30,7 +30,8 @@ def _radar_bag(path, placements=4, rcs=15.0):
                 clutter = rng.uniform([1, -3, -0.5], [8, 3, 0.5], (5, 3))[:, :dim]
                 pts = np.vstack([target[:dim] + rng.normal(0, 0.02, dim), clutter])
                 r = np.concatenate([[rcs], rng.uniform(-10, 3, 5)])
-                frames[topic].append(RadarFrame(sensor, int((t + i / rate) * NS), pts, r))
+                frames[topic].append(RadarFrame(sensor, int((t + i / rate) * NS), pts, r,
+                                                frame_id=(frame_ids or {}).get(sensor, "")))
         t += 4.5
     return write_recording(path, frames, "rosbag1")
 
@@ -124,3 +125,19 @@ def test_calibrate_with_rig_runs_detection_first(tmp_path, rig, capsys):
     assert "4 board placements found" in out.out and "radar2-radar1" in out.out.replace("radar1-radar2", "radar2-radar1")
     assert re.search(r"^detecting: (\d+)/\1 frames \(100%\), [0-9.]+ s$", out.out, re.M), out.out
     assert (tmp_path / "cal" / "calibration.yaml").is_file()
+
+
+def test_frame_ids_default_to_the_messages(tmp_path, rig, capsys):
+    """Without a frame_id in the rig, a sensor's frame is its messages' header.frame_id (a ROS 1
+    leading slash dropped); a rig frame_id that differs from the messages' is kept, with a note."""
+    import yaml
+
+    bag = _radar_bag(tmp_path / "rec.bag", frame_ids={"radar1": "/front_radar", "radar2": "radar_3d_link"})
+    rig.write_text(RIG.replace("topic: /r2,", "topic: /r2, frame_id: rear_radar,"))
+    assert run(["detect", str(bag), "--rig", str(rig), "--out", str(tmp_path / "det")]) == 0
+    out = " ".join(capsys.readouterr().out.split())
+    manifest = yaml.safe_load((tmp_path / "det" / "rig.yaml").read_text())
+    frames = {s["name"]: s["frame_id"] for s in manifest["sensors"]}
+    assert frames == {"radar1": "front_radar", "radar2": "rear_radar"}
+    assert ("note: sensor 'radar2': frame_id 'rear_radar' (rig) differs from its messages' "
+            "frame_id 'radar_3d_link'; the rig's is used") in out

@@ -64,7 +64,10 @@ def add_parser(sub) -> None:
         action="store_true",
         help="hold each 2D radar's z, roll and pitch at the initial guess",
     )
-    c.add_argument("--initial", metavar="FILE", help="initial guesses: a previous calibration.yaml")
+    c.add_argument("--initial", metavar="FILE",
+                   help="initial guesses (nominal poses): a previous calibration.yaml, or the robot's "
+                   "URDF (each sensor at the link its frame_id names; cameras: the optical frame; the "
+                   "written files then name frames by that URDF, as `rigcal urdf` does)")
     c.add_argument("--cv-folds", type=count(0, 1000), default=5, metavar="N", help="leave-boards-out folds (0 = off)")
     plot = c.add_mutually_exclusive_group()
     plot.add_argument("--plot", action="store_true",
@@ -83,9 +86,40 @@ def add_parser(sub) -> None:
     c.set_defaults(func=run)
 
 
-def options_from(args):
-    """The :class:`CalibrationOptions` the command-line options ask for."""
+def initial_poses_from(path: str, dataset, reference: str | None):
+    """``{sensor: T_reference_sensor}`` nominal poses from ``--initial`` (a calibration.yaml or
+    the robot's URDF, :func:`rigcal.io.results.calibration_files.read_initial_poses`) for
+    ``dataset``, relative to its reference (``reference`` or the dataset's default)."""
     from rigcal.io.results.calibration_files import read_initial_poses
+    from rigcal.problem.initialise import default_reference
+
+    if dataset is None:
+        from rigcal.io.results.calibration_files import initial_is_urdf
+
+        if initial_is_urdf(path):
+            from rigcal.errors import InputError
+
+            raise InputError(f"--initial {path}: a URDF needs one rig's sensors; with --batch give a "
+                             "calibration.yaml, or calibrate each dataset on its own")
+        return read_initial_poses(path)
+    return read_initial_poses(path, dataset.sensors, reference or default_reference(dataset))
+
+
+def initial_urdf(args):
+    """The parsed URDF of ``--initial`` when it is one (else None): the written files name
+    frames by it."""
+    from rigcal.io.results.calibration_files import initial_is_urdf
+
+    if not getattr(args, "initial", None) or not initial_is_urdf(args.initial):
+        return None
+    from rigcal.io.results.urdf import read_urdf
+
+    return read_urdf(args.initial)
+
+
+def options_from(args, dataset=None):
+    """The :class:`CalibrationOptions` the command-line options ask for (``dataset``: the rig,
+    needed to read nominal poses from a URDF)."""
     from rigcal.problem.calibrate import CalibrationOptions
 
     return CalibrationOptions(
@@ -93,7 +127,7 @@ def options_from(args):
         reference=args.reference,
         detect_outliers=not args.keep_outliers,
         hold_radar_plane=args.hold_radar_plane,
-        initial=read_initial_poses(args.initial) if args.initial else None,
+        initial=initial_poses_from(args.initial, dataset, args.reference) if args.initial else None,
         cross_validation_folds=args.cv_folds,
         pse_noise=args.pse_noise,
     )
@@ -138,14 +172,15 @@ def run(args, console) -> int:
         raise InputError("no input: give a rig.yaml manifest or --lidar/--camera/--radar files")
     if args.ignore:
         dataset = dataset.with_excluded(read_ignore_file(args.ignore, dataset))
-    result = calibrate(dataset, options_from(args))
+    urdf = initial_urdf(args)
+    result = calibrate(dataset, options_from(args, dataset))
     if result.flagged and not args.force:
         summary(result, console)
         return not_written(console)
     # raw data: the lidar scans on the camera images, for the report
     raw = raw_images(args.manifest, args.rig, detection, result) if detection is not None else None
     with staged_folder(args.out) as stage:
-        write_calibration_set(result, dataset, stage, raw)
+        write_calibration_set(result, dataset, stage, raw, urdf=urdf)
         if args.plot:
             from rigcal.report.plot import plot_calibration
 
@@ -153,6 +188,12 @@ def run(args, console) -> int:
     if args.json:
         sys.stdout.write(result_to_json_text(result) + "\n")
     summary(result, console)
+    if urdf is None:  # calibration.launch names cameras by rule 2 of the frame contract
+        from rigcal.io.results.calibration import calibration_transforms
+        from rigcal.io.results.frames import plan_with_checks
+
+        for w in plan_with_checks(calibration_transforms(result))[1]:
+            console.print(f"[yellow]warning:[/yellow] {w}")
     console.print(f"results written to {args.out}/" + (" (FLAGGED, written with --force)" if result.flagged else ""))
     return EXIT_FLAGGED if result.flagged else 0
 

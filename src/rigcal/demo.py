@@ -51,15 +51,20 @@ class DemoReport:
 def _calibrate_all(dataset, truth, out: Path, modes=("mcpe", "fcpe", "pse"),
                    raw_images=None) -> tuple[ModeOutcome, ...]:
     """Calibrate with every mode and write each result set; ``raw_images(result)``, when given,
-    returns the report's lidar-on-image overlays from the recording."""
+    returns the report's lidar-on-image overlays from the recording. calibration.png too when
+    matplotlib is installed (the ``plots`` extra)."""
+    from rigcal.extras import available
     from rigcal.io.results.report import write_calibration_set
-    from rigcal.report.plot import plot_calibration
 
+    plot = available("matplotlib")
     outcomes = []
     for mode in modes:
         result = calibrate(dataset, CalibrationOptions(mode=mode, cross_validation_folds=5))
         write_calibration_set(result, dataset, out / mode, raw_images(result) if raw_images else None)
-        plot_calibration(dataset, result, out / mode / "calibration.png")
+        if plot:
+            from rigcal.report.plot import plot_calibration
+
+            plot_calibration(dataset, result, out / mode / "calibration.png")
         outcomes.append(ModeOutcome(mode, result, errors_against_truth(result, truth)))
     return tuple(outcomes)
 
@@ -218,11 +223,8 @@ def raw_demo(
     rng = np.random.default_rng(seed)
     sensors = demo_raw_rig(full_rate)
     placements = raw_rig_placements(rng, sensors, boards)
-    if progress:
-        progress("simulating raw data", 0, 0)
-    rec = simulate_recording(sensors, placements, rng, dwell_s=2.5, transition_s=1.5)
-    if progress:
-        progress("simulating raw data", 1, 1)
+    rec = simulate_recording(sensors, placements, rng, dwell_s=2.5, transition_s=1.5,
+                             progress=(lambda d, t: progress("simulating raw data", d, t)) if progress else None)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     rig_text = raw_rig_yaml(sensors)

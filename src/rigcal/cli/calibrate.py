@@ -138,6 +138,10 @@ def run(args, console) -> int:
         raise InputError("no input: give a rig.yaml manifest or --lidar/--camera/--radar files")
     if args.ignore:
         dataset = dataset.with_excluded(read_ignore_file(args.ignore, dataset))
+    if args.plot:  # before the work, not after it
+        from rigcal.extras import require
+
+        require("matplotlib", "--plot (calibration.png)")
     result = calibrate(dataset, options_from(args))
     if result.flagged and not args.force:
         summary(result, console)

@@ -105,6 +105,17 @@ def run(argv: Sequence[str] | None = None) -> int:
     except RecursionError:
         sys.stderr.write(f"rigcal: error: input nested too deeply for '{args.command}'\n")
         return 1
+    except ModuleNotFoundError as exc:
+        # an optional package (rigcal.extras) imported where no early check named it
+        from rigcal.extras import missing_extra_message
+
+        if interrupts.requested():
+            return _interrupted(interrupts.requested())
+        message = missing_extra_message(exc.name or "", f"'rigcal {args.command}'")
+        if message is None:
+            raise
+        sys.stderr.write(f"rigcal: error: {message}\n")
+        return 1
     except Exception:
         # The interrupt can arrive inside code that turns any exception into its own: a C
         # extension being imported reports "ImportError: initialization failed". Once a signal

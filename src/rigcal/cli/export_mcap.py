@@ -1,0 +1,54 @@
+"""``rigcal export --format mcap``: a verification scene for Foxglove
+(:mod:`rigcal.io.results.mcap_scene`); the options it adds to ``rigcal export``."""
+
+from __future__ import annotations
+
+
+def add_arguments(e) -> None:
+    """The scene's options on the ``export`` parser."""
+    g = e.add_argument_group("--format mcap (a Foxglove scene; needs the mcap extra)")
+    g.add_argument("--detections", metavar="RIG_YAML",
+                   help="a dataset's rig.yaml (e.g. from `rigcal detect` or --keep-detections): each "
+                   "sensor's board detections and the residual lines between sensors")
+    g.add_argument("--recording", metavar="BAG",
+                   help="a recording (bag or folder) to detect the board in with --rig: the detections "
+                   "at their times, and a point cloud or image per sensor and placement")
+    g.add_argument("--rig", metavar="RIG_YAML", help="the detection rig of --recording")
+
+
+def run(args, console) -> int:
+    from rigcal.errors import InputError
+    from rigcal.extras import require
+    from rigcal.io.results.calibration_files import read_calibration_transforms
+    from rigcal.io.results.mcap_scene import build_scene, static_transforms, write_scene
+
+    if not args.out:
+        raise InputError("--format mcap writes a binary file: give --out FILE (e.g. --out scene.mcap)")
+    if bool(args.recording) != bool(args.rig):
+        raise InputError("--recording and --rig go together (the rig says which topic is which sensor)")
+    if args.recording and args.detections:
+        raise InputError("give --recording with --rig, or --detections, not both")
+    require("foxglove", "--format mcap")  # before any detection work
+    cal = read_calibration_transforms(args.calibration)
+    transforms = static_transforms(cal.parent_frame, dict(cal.transforms))
+    dataset = detection = recording = rig = None
+    if args.detections:
+        from rigcal.io.dataset.manifest import load_manifest
+
+        dataset = load_manifest(args.detections)
+    if args.recording:
+        from rigcal.cli.detect import detect_recording
+        from rigcal.io.config.rig_config import load_rig_config
+        from rigcal.io.recordings.open_any import open_any
+
+        detection = detect_recording(args.recording, args.rig, console)
+        rig = load_rig_config(args.rig)
+        with open_any(args.recording) as recording:
+            scene = build_scene(args.calibration, transforms, detection=detection, recording=recording, rig=rig)
+    else:
+        scene = build_scene(args.calibration, transforms, dataset=dataset)
+    write_scene(args.out, scene)
+    console.print(f"{len(scene.transforms)} transform(s), {len(scene.marks)} board detection(s), "
+                  f"{len(scene.residuals)} residual line set(s), {len(scene.clouds)} cloud(s), "
+                  f"{len(scene.images)} image(s) written to {args.out} (open it in Foxglove)")
+    return 0

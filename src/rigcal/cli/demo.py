@@ -95,8 +95,8 @@ def print_demo(report, console) -> None:
     modes = [o.mode for o in report.outcomes]
     first = "fcpe" if "fcpe" in modes else modes[0]
     others = ", ".join(f"{m}/" for m in modes if m != first)
-    console.print(f"open {report.out_dir / first / 'report.html'} in a browser"
-                  + (f" (the other modes: {others})" if others else ""), soft_wrap=True)
+    console.print("open this page in a browser" + (f" (the other modes: {others})" if others else "") + ":")
+    console.print(str(report.out_dir / first / "report.html"), soft_wrap=True, markup=False, highlight=False)
 
 
 def print_mocap_demo(report, console) -> None:
@@ -132,7 +132,8 @@ def print_mocap_demo(report, console) -> None:
     # one line, to copy
     console.print(f"run it again with: rigcal mocap {report.scene_dir / 'mocap.yaml'} --out {report.results_dir}",
                   soft_wrap=True)
-    console.print(f"open {report.results_dir / 'report.html'} in a browser", soft_wrap=True)
+    console.print("open this page in a browser:")
+    console.print(str(report.results_dir / "report.html"), soft_wrap=True, markup=False, highlight=False)
 
 
 def print_absolute_demo(report, console) -> None:
@@ -160,7 +161,8 @@ def print_absolute_demo(report, console) -> None:
     console.print(f"scene (dataset/, scan.pcd, wheels.yaml, vehicle.urdf) written to {report.scene_dir}/")
     console.print(f"absolute calibration written to {report.results_dir}/; calibrated URDF: {report.urdf_path}")
     console.print(f"run it again with: {report.command}", soft_wrap=True)
-    console.print(f"open {report.results_dir / 'report.html'} in a browser", soft_wrap=True)
+    console.print("open this page in a browser:")
+    console.print(str(report.results_dir / "report.html"), soft_wrap=True, markup=False, highlight=False)
 
 
 def run(args, console) -> int:
@@ -192,7 +194,8 @@ def run(args, console) -> int:
                 "--detections-only runs without it)" if not args.mocap else
                 "the motion-capture demo (it renders camera images)")
     out = Path(args.out)
-    units = {"detecting": "frames", "extracting targets": "frames", "simulating raw data": "frames"}
+    units = {"detecting": "frames", "extracting targets": "frames", "simulating raw data": "frames",
+             "calibrating MCPE, FCPE, PSE": "modes"}
     # the whole demo folder is written as one set: a new folder beside --out, renamed at the end
     with staged_folder(out) as stage:
         if args.absolute:

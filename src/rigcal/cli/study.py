@@ -10,7 +10,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from rigcal.cli.args import count, number, subcommand
+from rigcal.cli.args import WrappedHelpFormatter, count, number, subcommand
 
 #: --scheduler (:mod:`rigcal.study.scale`; the parser must not import it)
 SCHEDULER_HELP = ("where the draws run: 'local' (default: a Dask LocalCluster, one worker process "
@@ -65,7 +65,7 @@ def add_parser(sub) -> None:
         sub, "study",
         help="reproducible studies of the papers' experiments",
         description="Reproducible studies of the papers' simulated experiments.",
-        formatter_class=argparse.HelpFormatter,
+        formatter_class=WrappedHelpFormatter,
     )
     st_sub = st.add_subparsers(dest="study", metavar="STUDY")
     add_arguments(subcommand(
@@ -118,7 +118,7 @@ def mocap_parser() -> argparse.ArgumentParser:
         description="Reproduce Charron et al.'s simulated motion-capture calibration study (Tables "
         "I-III) on simulated VLP-16 scans or camera images, next to the paper's numbers.",
         epilog=EPILOG,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=WrappedHelpFormatter,
     )
     return add_arguments(p)
 

@@ -343,3 +343,93 @@ def test_radar_arc_and_error_colour():
     assert error_colour(0.0, 1.0) == (0.0, 1.0, 0.0, 1.0)
     assert error_colour(0.5, 1.0) == (1.0, 1.0, 0.0, 1.0)
     assert error_colour(7.0, 1.0) == error_colour(float("nan"), 1.0) == (1.0, 0.0, 0.0, 1.0)
+
+
+def test_clouds_and_images_as_foxglove_messages(tmp_path):
+    """A scene's clouds (non-finite points dropped, every field float32) and images (mono8 and
+    bgr8, row-major bytes) as Foxglove PointCloud and RawImage messages in their frames."""
+    from rigcal.io.results.mcap_scene import Scene, SceneCloud, SceneImage, StaticTransform, write_scene
+
+    rng = np.random.default_rng(2)
+    pts = rng.normal(size=(50, 3))
+    pts[7] = np.nan
+    intensity = rng.uniform(0, 255, 50)
+    mono = rng.integers(0, 255, (12, 16), dtype=np.uint8)
+    bgr = rng.integers(0, 255, (12, 16, 3), dtype=np.uint8)
+    T = np.eye(4)
+    T[:3, 3] = (0.5, -0.25, 1.0)
+    scene = Scene(5 * NS, (StaticTransform("lidar1", "camera1", T), StaticTransform("lidar1", "camera2", T)),
+                  clouds=(SceneCloud("lidar1", "lidar1", 6 * NS, pts, {"intensity": intensity}),),
+                  images=(SceneImage("camera1", "camera1", 7 * NS, mono), SceneImage("camera2", "camera2", 8 * NS, bgr)))
+    read = read_scene(write_scene(tmp_path / "s.mcap", scene))["messages"]
+    ((t, cloud),) = read["/rigcal/points/lidar1"]
+    assert t == 6 * NS and cloud.frame_id == "lidar1" and cloud.point_stride == 16
+    data = np.frombuffer(cloud.data, dtype=np.dtype([(n, "<f4") for n in ("x", "y", "z", "intensity")]))
+    keep = np.arange(50) != 7
+    np.testing.assert_array_equal(data["x"], pts[keep, 0].astype(np.float32))
+    np.testing.assert_array_equal(data["intensity"], intensity[keep].astype(np.float32))
+    ((t1, m1),) = read["/rigcal/image/camera1"]
+    ((t2, m2),) = read["/rigcal/image/camera2"]
+    assert (t1, m1.encoding, m1.width, m1.height, m1.frame_id) == (7 * NS, "mono8", 16, 12, "camera1")
+    assert m1.data == mono.tobytes() and (m2.encoding, m2.step, m2.data) == ("bgr8", 48, bgr.tobytes())
+    assert [t for t, _ in read[TF_TOPIC]] == [5 * NS]
+
+
+def test_a_bad_image_is_refused_with_its_topic(tmp_path):
+    from rigcal.errors import InputError
+    from rigcal.io.results.mcap_scene import Scene, SceneImage, write_scene
+
+    scene = Scene(0, (), images=(SceneImage("camera1", "camera1", 0, np.zeros((4, 4), dtype=np.float32)),))
+    with pytest.raises(InputError, match=r"image of 'camera1' must be uint8 \(H, W\) or \(H, W, 3\), got float32"):
+        write_scene(tmp_path / "s.mcap", scene)
+    assert not (tmp_path / "s.mcap").exists()
+
+
+def test_one_frame_per_sensor_and_placement_from_the_middle_of_its_window(tmp_path):
+    """What a recording scene takes from each placement: each sensor's first frame from the
+    window's middle on - a mono image, a stereo pair's left image, a cloud, a 2D radar's
+    detections on its plane - in the sensor's calibrated frame."""
+    from rigcal.detect.placements import Placement
+    from rigcal.io.config.rig_config import parse_rig_config
+    from rigcal.io.results.mcap_scene import _recording_frames
+    from rigcal.recording import ImageFrame, PointCloudFrame, StereoFrame
+
+    rig = parse_rig_config("""
+sensors:
+  - {name: lidar1, kind: lidar, topic: /l}
+  - {name: cam, kind: camera, topic: /c, camera_info_topic: /ci}
+  - name: stereo
+    kind: camera
+    input: stereo_pair
+    topic: /sl
+    right_topic: /sr
+    stereo: {fx: 100, fy: 100, cx: 50, cy: 40, baseline_m: 0.1}
+  - {name: radar1, kind: radar, topic: /r}
+""", str(tmp_path / "rig.yaml"), tmp_path)
+    img = np.zeros((8, 10), dtype=np.uint8)
+    stream = []
+    for t in range(0, 100):
+        stream += [PointCloudFrame("lidar1", t * NS, np.full((3, 3), t, dtype=float)),
+                   ImageFrame("cam", t * NS, img + t),
+                   ImageFrame("stereo#left", t * NS, img + 1), ImageFrame("stereo#right", t * NS, img + 2),
+                   RadarFrame("radar1", t * NS, np.array([[float(t), 1.0]]), np.array([10.0]))]
+
+    class Recording:
+        asked: list = []
+
+        def frames(self, topics, start_ns=None, end_ns=None):
+            self.asked.append(dict(topics))
+            return (f for f in stream if start_ns <= f.t_ns < end_ns and f.sensor in topics)
+
+    frames = {"lidar1": "laser", "cam": "cam_optical", "stereo": "stereo_left", "radar1": "radar"}
+    placements = (Placement(0, 10 * NS, 20 * NS), Placement(1, 40 * NS, 61 * NS))
+    clouds, images = _recording_frames(Recording(), rig, placements, frames)
+    assert "stereo#right" not in Recording.asked[0] and "stereo#left" in Recording.asked[0]
+    assert [(c.topic_name, c.frame_id, c.t_ns) for c in clouds] == [
+        ("lidar1", "laser", 15 * NS), ("radar1", "radar", 15 * NS), ("lidar1", "laser", 51 * NS),
+        ("radar1", "radar", 51 * NS)]  # the second window's middle is 50.5 s
+    np.testing.assert_array_equal(clouds[1].points_xyz, [[15.0, 1.0, 0.0]])  # on the radar's plane
+    assert clouds[1].fields["rcs_dbsm"].tolist() == [10.0]
+    assert [(i.topic_name, i.frame_id, i.t_ns, int(i.image[0, 0])) for i in images] == [
+        ("cam", "cam_optical", 15 * NS, 15), ("stereo", "stereo_left", 15 * NS, 1),
+        ("cam", "cam_optical", 51 * NS, 51), ("stereo", "stereo_left", 51 * NS, 1)]

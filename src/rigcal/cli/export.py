@@ -6,30 +6,37 @@ from __future__ import annotations
 import os
 import sys
 
+from rigcal.cli import export_mcap
 from rigcal.cli.args import subcommand
 
-FORMATS = ("ros1-launch", "ros2-launch", "ros2-run", "yaml", "json", "kalibr")
+FORMATS = ("ros1-launch", "ros2-launch", "ros2-run", "yaml", "json", "kalibr", "mcap")
 
 
 def add_parser(sub) -> None:
     e = subcommand(
         sub, "export",
-        help="export a calibration as static TF publishers (ROS1/ROS2), YAML/JSON or a Kalibr camchain",
+        help="export a calibration as static TF publishers (ROS1/ROS2), YAML/JSON, a Kalibr camchain "
+        "or a Foxglove scene",
         description="Writes every calibrated transform as ROS1 tf2_ros static_transform_publisher "
         "nodes (x y z qx qy qz qw parent child, on /tf_static), a ROS2 Python launch file, `ros2 "
         "run tf2_ros static_transform_publisher` lines, or YAML/JSON (4x4, xyz, rpy, quaternion), "
-        "at full precision; or the calibration's cameras as a Kalibr camchain (--format kalibr, "
-        "intrinsics from --intrinsics or --rig). Frames follow one contract (docs/conventions.md): "
-        "a camera's calibrated frame is its optical frame; with --urdf the robot's links name the "
-        "frames exactly as `rigcal urdf` writes them (a camera link with a separate optical "
-        "child is published with that child).",
+        "at full precision; the calibration's cameras as a Kalibr camchain (--format kalibr, "
+        "intrinsics from --intrinsics or --rig); or an MCAP scene for Foxglove with the frame tree, "
+        "the board detections and the residuals (--format mcap). Frames follow one contract "
+        "(docs/conventions.md): a camera's calibrated frame is its optical frame; with --urdf the "
+        "robot's links name the frames exactly as `rigcal urdf` writes them (a camera link with a "
+        "separate optical child is published with that child).",
         epilog="examples:\n  rigcal export results/calibration.yaml --format ros2-launch --out calib.launch.py\n"
         "  rigcal export results/calibration.yaml --urdf robot.urdf --format ros1-launch --out calib.launch\n"
         "  rigcal export absolute.yaml --format ros2-run\n"
-        "  rigcal export results/calibration.yaml --format kalibr --rig detect_rig.yaml --out camchain.yaml",
+        "  rigcal export results/calibration.yaml --format kalibr --rig detect_rig.yaml --out camchain.yaml\n"
+        "  rigcal export results/calibration.yaml --format mcap --detections detections/rig.yaml --out scene.mcap\n"
+        "  rigcal export results/calibration.yaml --format mcap --recording run.bag --rig detect_rig.yaml "
+        "--out scene.mcap",
     )
     e.add_argument("calibration", metavar="CALIBRATION")
-    e.add_argument("--format", required=True, choices=list(FORMATS))
+    e.add_argument("--format", required=True, choices=list(FORMATS), metavar="FORMAT",
+                   help="one of: " + ", ".join(FORMATS))
     e.add_argument("--out", metavar="FILE", help="output file (default: stdout)")
     e.add_argument("--urdf", metavar="ROBOT.urdf",
                    help="the robot's URDF: frame_ids are resolved in its links as `rigcal urdf` does "
@@ -42,7 +49,8 @@ def add_parser(sub) -> None:
                    "YAML, INI) for SENSOR (FILE#cam1 picks one camera of a multi-camera file); repeatable")
     e.add_argument("--rig", metavar="RIG.yaml",
                    help="--format kalibr: a detection rig or mocap.yaml naming each camera's intrinsics "
-                   "(and topic)")
+                   "(and topic); --format mcap: the detection rig of --recording")
+    export_mcap.add_arguments(e)
     e.set_defaults(func=run)
 
 
@@ -68,8 +76,12 @@ def run(args, console) -> int:
         raise InputError(
             f"--out {args.out}: is the input calibration file; choose another output path"
         )
+    if args.format == "mcap":
+        return export_mcap.run(args, console)
+    if args.detections or args.recording:
+        raise InputError("--detections and --recording apply to --format mcap only")
     if args.format != "kalibr" and (args.intrinsics or args.rig):
-        raise InputError("--intrinsics and --rig apply to --format kalibr only")
+        raise InputError("--intrinsics and --rig apply to --format kalibr or mcap only")
     cal = read_calibration_transforms(args.calibration)
     say = console.print if args.out else (lambda line: sys.stderr.write(line + "\n"))
     if args.format == "kalibr":

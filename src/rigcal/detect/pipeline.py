@@ -77,6 +77,9 @@ def build_detector(setup: SensorSetup, rig: DetectionRig, recording: RecordingLi
 
         cfg = _config(LidarDetectorConfig, setup.detector, where)
         return lambda f: detect_board_lidar(f, board, cfg)
+    from rigcal.extras import require
+
+    require("cv2", f"detecting the board in camera images (sensor '{setup.name}')")
     if setup.input == "mono":
         from rigcal.detect.mono import MonoDetectorConfig, detect_board_mono
 

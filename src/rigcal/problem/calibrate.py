@@ -34,6 +34,7 @@ from rigcal.problem.outliers import OutlierRule, find_outliers
 from rigcal.problem.pairs import all_pairs, pair_data
 from rigcal.problem.result import CalibrationResult, SensorEstimate
 from rigcal.problem.numerics import scale_rows, single_threaded
+from rigcal.stages import StageClock
 from rigcal.problem.noise import (
     DetectionUnits,
     detection_units,
@@ -126,6 +127,9 @@ def _check(dataset: Dataset, options: CalibrationOptions) -> str:
         )
     if mode == "pse" and dataset.sensor(reference).kind == SensorKind.RADAR:
         raise ConfigError("PSE needs a 3D reference sensor (lidar, camera or 3D radar), not a 2D radar")
+    if mode == "pse" and not any(s.kind.is_point_cloud for s in dataset.sensors):
+        raise ConfigError("PSE needs a lidar or camera (the board poses come from their circle centres); "
+                          f"this rig has only radars ({', '.join(dataset.names)}): use FCPE or MCPE")
     if options.pse_noise not in PSE_NOISE:
         raise ConfigError(
             f"unknown PSE noise '{options.pse_noise}' (expected one of: {', '.join(PSE_NOISE)})"
@@ -594,14 +598,19 @@ def calibrate(dataset: Dataset, options: CalibrationOptions = CalibrationOptions
     reference = _check(dataset, options)
     mode = options.mode.lower()
     ignored = {s.name: tuple(sorted(s.excluded)) for s in dataset.sensors if s.excluded}
+    clock = StageClock(log)
     with single_threaded():
         fit, work, outliers = _fit_screened(dataset, mode, reference, options)
+        clock.lap(f"{mode.upper()} fit with outlier screening"
+                  + (f" ({fit.noise_iterations} noise iterations)" if fit.noise_iterations else ""))
         rmse, per_board = evaluate_pairs(work, fit.poses)
         cv = (
             _cross_validation(work, mode, reference, fit.poses, options)
             if options.cross_validation_folds
             else {}
         )
+        if options.cross_validation_folds:
+            clock.lap(f"cross-validation ({options.cross_validation_folds} folds)")
     units = detection_units(work)
     if "radar_reference" in fit.solution.extra:
         sol, bounded, theta = fit.solution, {}, _theta_all_pairs(work, fit.poses, reference, units)
@@ -609,6 +618,7 @@ def calibrate(dataset: Dataset, options: CalibrationOptions = CalibrationOptions
         sol, bounded, theta = _honest_covariance(work, fit, units)
     covariances = {s.name: sol.pose_covariance(s.name) for s in dataset.sensors}
     stds = {name: pose_std(fit.poses[name], cov) for name, cov in covariances.items()}
+    clock.lap("covariance")
     weak = {
         name: [w for w in weak_directions(std) if w.split(" ")[0] not in bounded.get(name, {})]
         for name, std in stds.items() if name != reference
@@ -621,6 +631,7 @@ def calibrate(dataset: Dataset, options: CalibrationOptions = CalibrationOptions
     result_verdict = verdict(
         pair_check, board_check, sol.rank_deficient, bounded, weak, noise_check(work, noise_model)
     )
+    clock.lap(f"consistency checks ({result_verdict.status})")
     if "radar_reference" in sol.extra:
         intervals = sol.extra["radar_reference"]
         iv = ", ".join(f"{d} {lo:+.3g}..{hi:+.3g} {'m' if d == 'z' else 'deg'}" for d, (lo, hi) in intervals.items())

@@ -109,7 +109,7 @@ def test_export_kalibr_refusals(files, capsys):
                                                  "--intrinsics", f"right={files / 'camchain.yaml'}#cam1",
                                                  "--intrinsics", f"fisheye={files / 'fisheye.json'}")
     assert run(["export", cal, "--format", "yaml", "--intrinsics", "x.json"]) == 1
-    assert "--intrinsics and --rig apply to --format kalibr only" in capsys.readouterr().err
+    assert "--intrinsics and --rig apply to --format kalibr or mcap only" in capsys.readouterr().err
     radtan_k3 = files / "k3.json"
     radtan_k3.write_text(json.dumps({"camera_type": "RADTAN", "image_width": 640, "image_height": 480,
                                      "intrinsics": [500, 500, 320, 240, 0.1, -0.1, 0, 0, 0.01]}))

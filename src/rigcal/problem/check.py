@@ -49,7 +49,18 @@ from rigcal.dataset import Dataset, SensorKind
 from rigcal.errors import InputError
 from rigcal.geometry.se3 import invert, se3_exp, se3_log
 from rigcal.problem.configurations import RADAR_PLANE_FREE, build_pairwise
-from rigcal.problem.movement import MoveTest, change_summary, format_p, format_vector, move_test, tested_basis
+from rigcal.problem.movement import (
+    MoveTest,
+    change_std,
+    change_summary,
+    finite_or_none,
+    format_deg,
+    format_mm,
+    format_p,
+    format_vector,
+    move_test,
+    determined_basis,
+)
 from rigcal.problem.noise import (
     COMPONENT_UNITS,
     detection_units,
@@ -135,7 +146,9 @@ class SensorCheck:
         t = self.test
         if self.status == MOVED and t is not None and self.change is not None:
             c = self.change
-            text = f"moved: {_mm(c['distance_m'])} mm, {c['rotation_deg']:.2f} deg ({format_p(t.p_value)})"
+            sd_t, sd_r = change_std(t.delta, t.covariance)
+            text = (f"moved: {format_mm(c['distance_m'])} +- {format_mm(sd_t)} mm, {c['rotation_deg']:.2f} +- "
+                    f"{sd_r:.2f} deg ({format_p(t.p_value)})")
             if self.alternatives:
                 text += f" - or {', '.join(self.alternatives)} moved: the data cannot tell which"
             return text
@@ -160,7 +173,7 @@ class SensorCheck:
         t = self.test
         if t is None or t.dof == 0:
             return "-"
-        return (f">= {_mm(t.detectable_translation_m * 1.0)} mm or {_deg(t.detectable_rotation_deg)} deg "
+        return (f">= {format_mm(t.detectable_translation_m * 1.0)} mm or {format_deg(t.detectable_rotation_deg)} deg "
                 f"({t.power:.0%} of the time)")
 
     def to_dict(self) -> dict[str, Any]:
@@ -180,8 +193,8 @@ class SensorCheck:
             "p_value": None if t is None else float(t.p_value),
             "alpha": None if t is None else float(t.alpha),
             "sigma": None if t is None else float(t.sigma),
-            "detectable_translation_m": None if t is None else _finite(t.detectable_translation_m),
-            "detectable_rotation_deg": None if t is None else _finite(t.detectable_rotation_deg),
+            "detectable_translation_m": None if t is None else finite_or_none(t.detectable_translation_m),
+            "detectable_rotation_deg": None if t is None else finite_or_none(t.detectable_rotation_deg),
             "power": None if t is None else float(t.power),
             "delta": None if t is None else [float(x) for x in t.delta],
             "covariance": None if t is None else [[float(x) for x in row] for row in t.covariance],
@@ -246,9 +259,10 @@ class CheckResult:
 
     @property
     def detectable(self) -> tuple[float, float]:
-        """(m, deg): the largest smallest-detectable change over the sensors that were tested -
-        what these boards can promise for every one of them."""
-        ts = [s.test for s in self.sensors.values() if s.test is not None and s.test.dof > 0]
+        """(m, deg): the largest smallest-detectable change over the sensors that were told
+        (moved or unchanged) - what these boards can promise for every one of them."""
+        ts = [s.test for s in self.sensors.values()
+              if s.test is not None and s.test.dof > 0 and s.status != CANNOT_TELL]
         if not ts:
             return math.inf, math.inf
         return max(t.detectable_translation_m for t in ts), max(t.detectable_rotation_deg for t in ts)
@@ -263,8 +277,8 @@ class CheckResult:
             "num_boards": int(self.num_boards),
             "alpha": float(self.alpha),
             "power": float(self.power),
-            "detectable_translation_m": _finite(dt),
-            "detectable_rotation_deg": _finite(dr),
+            "detectable_translation_m": finite_or_none(dt),
+            "detectable_rotation_deg": finite_or_none(dr),
             "moved": list(self.moved),
             "sensors": {n: s.to_dict() for n, s in self.sensors.items()},
             "pairs": {k: p.to_dict() for k, p in self.pairs.items()},
@@ -274,21 +288,6 @@ class CheckResult:
 
 
 # --------------------------------------------------------------------------------------------
-
-
-def _finite(x: float) -> float | None:
-    return float(x) if math.isfinite(x) else None
-
-
-def _mm(x_m: float) -> str:
-    if not math.isfinite(x_m):
-        return "inf"
-    mm = x_m * 1000.0
-    return f"{mm:.0f}" if mm >= 10 else f"{mm:.1f}"
-
-
-def _deg(x: float) -> str:
-    return "inf" if not math.isfinite(x) else f"{x:.2f}"
 
 
 def _theta(stored: StoredCalibration, units) -> np.ndarray:
@@ -484,7 +483,7 @@ def _sensor_test(ctx: _Context, s: str, partners: Sequence[str], alpha: float, e
     # sensor (its noise is told apart from its partners' only through loops of pairs)
     redundancy = J.shape[0] - k
     factor = 2.0 * cost / redundancy if redundancy > 0 else 1.0
-    test = move_test(delta, C6, tested_basis(H6, fi), alpha, ctx.options.power, factor, redundancy)
+    test = move_test(delta, C6, determined_basis(H6, fi), alpha, ctx.options.power, factor, redundancy)
     boards = len(np.unique(np.concatenate([ctx.problem.observations[i].board for i in sel])))
     return _Test(test, T_new, used, boards, converged, k, exact)
 
@@ -623,9 +622,10 @@ def _verdict(ctx: _Context, s: str, t: _Test | None, status: str | None, reason:
                                            f"(a check needs at least {opts.min_boards})")
         elif (t.test.detectable_translation_m > opts.max_detectable_m
               or t.test.detectable_rotation_deg > opts.max_detectable_deg):
-            status, reason = CANNOT_TELL, (f"too few boards ({t.boards}): only changes >= "
-                                           f"{_mm(t.test.detectable_translation_m)} mm or "
-                                           f"{_deg(t.test.detectable_rotation_deg)} deg would be found")
+            status, reason = CANNOT_TELL, (f"the {t.boards} boards it shares with {', '.join(t.partners)} "
+                                           "determine its pose too weakly: only changes >= "
+                                           f"{format_mm(t.test.detectable_translation_m)} mm or "
+                                           f"{format_deg(t.test.detectable_rotation_deg)} deg would be found")
         else:
             status = UNCHANGED
     return SensorCheck(s, kind.value, status, reason, t.partners, t.boards, t.test, stored.T_reference_sensor,

@@ -168,7 +168,7 @@ class MoveTest:
         return math.sqrt(max(self.statistic, 0.0))
 
 
-def tested_basis(information: np.ndarray, directions: np.ndarray) -> np.ndarray:
+def determined_basis(information: np.ndarray, directions: np.ndarray) -> np.ndarray:
     """(6, k) orthonormal basis of the directions among ``directions`` (indices into the 6
     tangent coordinates) on which the (6, 6) ``information`` (or any PSD matrix whose null space
     is the untested directions) is not zero; the scale of rotations and translations is
@@ -213,7 +213,7 @@ def _detectable(Q: np.ndarray, idx: list[int], nc: float) -> float:
 def move_test(delta: np.ndarray, covariance: np.ndarray, basis: np.ndarray, alpha: float,
               power: float = 0.8, variance_factor: float = 1.0, redundancy: int = 0) -> MoveTest:
     """The chi-square test of the change ``delta`` (6,) with covariance ``covariance`` (6, 6)
-    over the tested subspace ``basis`` (6, k) (:func:`tested_basis`), at level ``alpha``;
+    over the tested subspace ``basis`` (6, k) (:func:`determined_basis`), at level ``alpha``;
     detectable changes at ``power``.
 
     ``variance_factor`` > 1 (residuals scattering more than the noise model says, estimated with
@@ -264,11 +264,47 @@ def change_summary(T_old: np.ndarray, T_new: np.ndarray) -> dict:
     }
 
 
+def change_std(delta: np.ndarray, covariance: np.ndarray) -> tuple[float, float]:
+    """(m, deg): first-order standard deviations of the length of a change's translation and of
+    its rotation angle, from the (6, 6) covariance of the change ``delta`` (right perturbation)."""
+    d = np.asarray(delta, dtype=float)
+    C = np.asarray(covariance, dtype=float)
+    out = []
+    for sl in (slice(3, 6), slice(0, 3)):
+        v = d[sl]
+        n = float(np.linalg.norm(v))
+        block = C[sl, sl]
+        if n > 1e-15:
+            u = v / n
+            var = float(u @ block @ u)
+        else:  # no change: the largest std of any direction
+            var = float(np.max(np.linalg.eigvalsh(0.5 * (block + block.T))))
+        out.append(math.sqrt(max(var, 0.0)))
+    return out[0], math.degrees(out[1])
+
+
 def format_p(p: float) -> str:
     """A p-value for people: ``p < 0.001`` below a thousandth, else ``p = 0.012``."""
     if not math.isfinite(p):
         return "p = -"
     return "p < 0.001" if p < 1e-3 else f"p = {p:.3f}"
+
+
+def format_mm(x_m: float) -> str:
+    """A length in millimetres: no decimals from 10 mm, one below; ``inf`` when infinite."""
+    if not math.isfinite(x_m):
+        return "inf"
+    mm = x_m * 1000.0
+    return f"{mm:.0f}" if abs(mm) >= 10 else f"{mm:.1f}"
+
+
+def format_deg(x: float) -> str:
+    return "inf" if not math.isfinite(x) else f"{x:.2f}"
+
+
+def finite_or_none(x: float) -> float | None:
+    """``x`` as a float, None when infinite or NaN (strict JSON)."""
+    return float(x) if math.isfinite(x) else None
 
 
 def format_vector(v, scale: float = 1.0, decimals: int = 0) -> str:
@@ -278,12 +314,16 @@ def format_vector(v, scale: float = 1.0, decimals: int = 0) -> str:
 __all__ = [
     "MoveTest",
     "TANGENT",
+    "change_std",
     "change_summary",
     "detectable_noncentrality",
+    "finite_or_none",
+    "format_deg",
+    "format_mm",
     "format_p",
     "format_vector",
     "move_test",
     "noncentral_chi2_sf",
-    "tested_basis",
+    "determined_basis",
     "z_score",
 ]

@@ -4,6 +4,8 @@ its calibration (:func:`rigcal.problem.check.check`); ``--batch``: a fleet on Da
 from __future__ import annotations
 
 import sys
+from collections.abc import Iterator
+from contextlib import contextmanager, nullcontext
 
 from rigcal.cli.args import number, subcommand
 from rigcal.cli.calibrate import SCHEDULER_HELP
@@ -162,8 +164,29 @@ def lost_cluster_errors() -> tuple[type[BaseException], ...]:
     return (OSError, TimeoutError, concurrent.futures.CancelledError)
 
 
-def run_batch(args, console) -> int:
+@contextmanager
+def _silenced(prefix: str) -> Iterator[None]:
+    """Every logger whose name starts with ``prefix`` silent in the block (a lost scheduler is
+    one error line, not the tracebacks distributed logs while it tries to reconnect and closes)."""
+    import importlib
     import logging
+
+    try:  # its loggers exist once it is imported
+        importlib.import_module(prefix)
+    except ImportError:
+        pass
+    names = [prefix] + [n for n in logging.root.manager.loggerDict if n.startswith(prefix + ".")]
+    saved = {n: logging.getLogger(n).disabled for n in names}
+    for n in names:
+        logging.getLogger(n).disabled = True
+    try:
+        yield
+    finally:
+        for n, disabled in saved.items():
+            logging.getLogger(n).disabled = disabled
+
+
+def run_batch(args, console) -> int:
     import time
     from pathlib import Path
 
@@ -207,27 +230,22 @@ def run_batch(args, console) -> int:
     lost = None
     t0 = time.monotonic()
     progress_console = make_console(to_stderr=True)
-    with progress_bar(progress_console, eta=True) as bar:
+    quiet = _silenced("distributed") if args.scheduler != "serial" else nullcontext()
+    with progress_bar(progress_console, eta=True) as bar, quiet:
         task = bar.add_task("checking", total=len(todo), unit="vehicles")
         with task_runner(args.scheduler, tasks=len(todo)) as runner:
-            # a lost scheduler is one line below, not distributed's logged tracebacks
-            quiet = logging.getLogger("distributed")
-            level = quiet.level
-            quiet.setLevel(logging.CRITICAL + 1)
             try:
                 runner.map(check_task, [items[n] for n in todo], shared=CheckOptions(alpha=args.alpha), name="check",
                            progress=lambda d, t: bar.update(task, completed=d, total=t), on_result=finished)
             except lost_cluster_errors() as exc:
                 lost = exc
-            finally:
-                quiet.setLevel(level)
     for name in todo:
         rows.setdefault(name, vehicle_row(name, None, "not checked: the Dask scheduler was lost", status="not checked"))
     note = ""
     if lost is not None:
         done = sum(1 for n in todo if rows[n]["status"] != "not checked")
         note = (f"the Dask scheduler was lost after {done} of {len(todo)} vehicles "
-                f"({type(lost).__name__}: {lost}); the others were not checked")
+                f"({type(lost).__name__}: {' '.join(str(lost).split())}); the others were not checked")
     summary = fleet_summary([rows[n] for n in names], args.alpha, note)
     write_fleet(summary, out)
     t = table(f"check --batch: {len(names)} vehicles, {time.monotonic() - t0:.1f} s (worst first)",

@@ -30,8 +30,8 @@ from rigcal.errors import RigcalError
 from rigcal.geometry.se3 import se3_exp
 
 #: what each check on the fleet records, per vehicle and board count
-__all__ = ["MOVE_ROTATION_DEG", "MOVE_TRANSLATION_M", "Vehicle", "fleet_rates", "moved_sensor", "simulate_vehicle",
-           "check_vehicle"]
+__all__ = ["MOVE_ROTATION_DEG", "MOVE_TRANSLATION_M", "Vehicle", "check_vehicle", "fleet_dataset", "fleet_rates",
+           "moved_sensor", "moved_vehicles", "roc", "simulate_vehicle"]
 
 MOVE_TRANSLATION_M = (0.002, 0.030)
 MOVE_ROTATION_DEG = (0.1, 2.0)
@@ -44,15 +44,21 @@ class Vehicle:
 
     index: int
     sensors: tuple
-    stored: Any  # rigcal.problem.stored.StoredCalibration
+    result: Any  # rigcal.problem.result.CalibrationResult
     calibrate_time_s: float
+
+    @property
+    def stored(self):
+        """The calibration as ``calibration.yaml`` stores it."""
+        from rigcal.problem.stored import StoredCalibration
+
+        return StoredCalibration.from_result(self.result, f"vehicle {self.index}")
 
 
 def simulate_vehicle(seed: int, index: int, boards: int = CALIBRATION_BOARDS) -> Vehicle:
     """Vehicle ``index`` of the fleet: a coverage-population rig calibrated with FCPE on
     ``boards`` boards (raises RigcalError when the calibration fails)."""
     from rigcal.problem.calibrate import CalibrationOptions, calibrate
-    from rigcal.problem.stored import StoredCalibration
     from rigcal.sim.rig import make_rig_placements, random_rig, simulate
     from rigcal.study.board_coverage import NoiseSpec, _with_noise
 
@@ -61,8 +67,7 @@ def simulate_vehicle(seed: int, index: int, boards: int = CALIBRATION_BOARDS) ->
     sim = simulate(sensors, make_rig_placements(rng, sensors, boards), rng=rng)
     t0 = time.perf_counter()
     result = calibrate(sim.dataset, CalibrationOptions(mode="fcpe", cross_validation_folds=0))
-    return Vehicle(index, sensors, StoredCalibration.from_result(result, f"vehicle {index}"),
-                   time.perf_counter() - t0)
+    return Vehicle(index, sensors, result, time.perf_counter() - t0)
 
 
 def _unit(rng: np.random.Generator, n: int = 3) -> np.ndarray:
@@ -117,7 +122,8 @@ def check_vehicle(vehicle: Vehicle, seed: int, boards: Sequence[int] = (10, 4)) 
     moved = tuple(s.with_pose(s.T_rig_sensor @ se3_exp(move)) if s.name == name else s for s in vehicle.sensors)
     kind = next(s.kind for s in vehicle.sensors if s.name == name)
     tested = [2, 3, 4] if kind == SensorKind.RADAR else list(range(6))
-    sigma = _sigma_multiple(vehicle.stored, name, move, tested)
+    stored = vehicle.stored
+    sigma = _sigma_multiple(stored, name, move, tested)
     out = []
     for K in boards:
         T_rig_board = make_rig_placements(rng, vehicle.sensors, K)
@@ -129,7 +135,9 @@ def check_vehicle(vehicle: Vehicle, seed: int, boards: Sequence[int] = (10, 4)) 
                    "rotation_deg": float(math.degrees(np.linalg.norm(move[:3]))) if case == "moved" else None,
                    "sigma_stored": sigma if case == "moved" else None}
             try:
-                res = check(vehicle.stored, data.dataset, CheckOptions())
+                cpu = time.process_time()
+                res = check(stored, data.dataset, CheckOptions())
+                cpu = time.process_time() - cpu
             except RigcalError as exc:
                 out.append({**row, "status": "error", "error": str(exc)})
                 continue
@@ -148,8 +156,42 @@ def check_vehicle(vehicle: Vehicle, seed: int, boards: Sequence[int] = (10, 4)) 
                 "true_detectable_mm": (true.test.detectable_translation_m * 1000
                                        if true is not None and true.test is not None else None),
                 "compute_s": res.compute_time_s,
+                "cpu_s": cpu,
             })
     return out
+
+
+def moved_vehicles(indices: Sequence[int], moved_fraction: float, seed: int) -> set[int]:
+    """The vehicles of a fleet that get one sensor moved: ``moved_fraction`` of ``indices``,
+    drawn once from the seed."""
+    rng = np.random.default_rng([seed, 99])
+    n = int(round(moved_fraction * len(indices)))
+    return set(int(i) for i in rng.permutation(sorted(indices))[:n])
+
+
+def fleet_dataset(vehicle: Vehicle, seed: int, boards: int, moved: bool):
+    """(new detections, moved sensor or None): what a fleet check of ``vehicle`` is given - its
+    rig as it is, or with :func:`moved_sensor`'s move (the same move :func:`check_vehicle` makes)."""
+    from rigcal.sim.rig import make_rig_placements, simulate
+
+    name, move, _ = moved_sensor(vehicle, np.random.default_rng([seed, vehicle.index, 1]))
+    sensors = tuple(s.with_pose(s.T_rig_sensor @ se3_exp(move)) if moved and s.name == name else s
+                    for s in vehicle.sensors)
+    rng = np.random.default_rng([seed, vehicle.index, 2])
+    data = simulate(sensors, make_rig_placements(rng, vehicle.sensors, boards), rng=rng).dataset
+    return data, (name if moved else None)
+
+
+def roc(rows: Sequence[dict], boards: int, thresholds: Sequence[float], sigma_min: float = 3.0) -> list[dict]:
+    """False-alarm and detection rates when a vehicle is called moved as soon as its smallest
+    Bonferroni-adjusted p-value (first round of the search) is below each threshold."""
+    rows = [r for r in rows if r["boards"] == boards and r["status"] != "error"]
+    clean = [r for r in rows if r["case"] == "clean"]
+    big = [r for r in rows if r["case"] == "moved" and r["detectable"] and r["sigma_stored"] > sigma_min]
+    return [{"threshold": t,
+             "false_alarm": float(np.mean([r["p_min_adjusted"] < t for r in clean])) if clean else math.nan,
+             "detection": float(np.mean([r["p_min_adjusted"] < t for r in big])) if big else math.nan}
+            for t in thresholds]
 
 
 def fleet_rates(rows: Sequence[dict], boards: int, moved_fraction: float = 0.1, seed: int = 0,
@@ -157,9 +199,7 @@ def fleet_rates(rows: Sequence[dict], boards: int, moved_fraction: float = 0.1, 
     """The fleet figures for one board count from :func:`check_vehicle`'s records."""
     rows = [r for r in rows if r["boards"] == boards]
     vehicles = sorted({r["vehicle"] for r in rows})
-    rng = np.random.default_rng([seed, 99])
-    n_moved = int(round(moved_fraction * len(vehicles)))
-    moved_set = set(rng.permutation(vehicles)[:n_moved].tolist())
+    moved_set = moved_vehicles(vehicles, moved_fraction, seed)
     clean = [r for r in rows if r["case"] == "clean"]
     moved = [r for r in rows if r["case"] == "moved"]
     fleet = [r for r in rows if (r["case"] == "moved") == (r["vehicle"] in moved_set)]
@@ -189,6 +229,19 @@ def fleet_rates(rows: Sequence[dict], boards: int, moved_fraction: float = 0.1, 
                                   [r for r in fleet if r["case"] == "clean"]),
         "fleet_detection": rate([r for r in fleet if r in big and r["status"] == "moved"],
                                 [r for r in fleet if r in big]),
+        "detection_by_sigma": {
+            label: rate([r for r in part if r["status"] == "moved"], part)
+            for label, part in (
+                (f"{lo:g}-{hi:g}", [r for r in moved if r["detectable"] and r["status"] != "error"
+                                    and lo < r["sigma_stored"] <= hi])
+                for lo, hi in ((0, 3), (3, 5), (5, 10), (10, math.inf)))},
+        "detection_beyond_quoted": rate(
+            [r for r in moved if r["detectable"] and r["status"] == "moved" and r["true_detectable_mm"]
+             and r["translation_mm"] > r["true_detectable_mm"]],
+            [r for r in moved if r["detectable"] and r["status"] != "error" and r["true_detectable_mm"]
+             and r["translation_mm"] > r["true_detectable_mm"]]),
         "compute_s_median": float(np.median([r["compute_s"] for r in rows if "compute_s" in r])),
         "compute_s_max": float(np.max([r["compute_s"] for r in rows if "compute_s" in r])),
+        "cpu_s_median": float(np.median([r["cpu_s"] for r in rows if "cpu_s" in r])),
+        "cpu_s_max": float(np.max([r["cpu_s"] for r in rows if "cpu_s" in r])),
     }

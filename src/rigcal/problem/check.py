@@ -542,7 +542,8 @@ def check(
                                          0, None, stored.sensors[name].T_reference_sensor, None,
                                          untestable_directions(stored.sensors[name].kind))
     ordered = dict(sorted(verdicts.items(), key=lambda kv: _rank(kv[1])))
-    return CheckResult(stored.reference, ordered, pairs, dataset.num_boards, options.alpha, options.power,
+    used = int(np.unique(np.concatenate([b.board for b in ctx.problem.observations])).size)
+    return CheckResult(stored.reference, ordered, pairs, used, options.alpha, options.power,
                        tuple(warnings), stored.source, dataset.source, time.perf_counter() - t0)
 
 

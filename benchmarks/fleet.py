@@ -104,6 +104,8 @@ def main() -> int:
     ap.add_argument("--moved-fraction", type=float, default=0.1)
     ap.add_argument("--roc-png", help="also draw the ROC into this PNG")
     ap.add_argument("--no-cli", action="store_true", help="skip the timed rigcal check --batch run")
+    ap.add_argument("--save", metavar="PICKLE", help="also save the vehicles and every check's record there")
+    ap.add_argument("--load", metavar="PICKLE", help="take the vehicles from a --save file instead of calibrating")
     args = ap.parse_args()
 
     from rigcal.study.fleet import fleet_rates, roc
@@ -111,15 +113,25 @@ def main() -> int:
 
     print(f"machine: {_machine()}; load average at start {os.getloadavg()[0]:.1f}")
     t0 = time.perf_counter()
+    import pickle
+
     with task_runner("local", workers=args.workers) as runner:
-        made = runner.map(_calibrate, list(range(args.vehicles)), shared=args.seed, name="calibrate")
-        vehicles = [v for v in made if not isinstance(v, str)]
-        t_cal = time.perf_counter() - t0
-        print(f"{len(vehicles)} vehicles calibrated ({len(made) - len(vehicles)} calibrations failed) in {t_cal:.0f} s "
-              f"on {runner.description}")
+        if args.load:
+            with open(args.load, "rb") as f:
+                vehicles = pickle.load(f)["vehicles"][: args.vehicles]
+            print(f"{len(vehicles)} vehicles from {args.load}")
+        else:
+            made = runner.map(_calibrate, list(range(args.vehicles)), shared=args.seed, name="calibrate")
+            vehicles = [v for v in made if not isinstance(v, str)]
+            t_cal = time.perf_counter() - t0
+            print(f"{len(vehicles)} vehicles calibrated ({len(made) - len(vehicles)} calibrations failed) in "
+                  f"{t_cal:.0f} s on {runner.description}")
         t1 = time.perf_counter()
         rows = [r for part in runner.map(_check, vehicles, shared=args.seed, name="check") for r in part]
         print(f"{len(rows)} checks in {time.perf_counter() - t1:.0f} s")
+    if args.save:
+        with open(args.save, "wb") as f:
+            pickle.dump({"vehicles": vehicles, "rows": rows}, f)
     for K in (10, 4):
         f = fleet_rates(rows, K, args.moved_fraction, args.seed)
         print(f"\n--- {K} boards per check ---")

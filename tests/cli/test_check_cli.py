@@ -244,3 +244,43 @@ def test_a_lost_scheduler_is_one_line_and_the_finished_vehicles_are_written(vehi
     for v in done:  # every vehicle finished before the loss is written
         assert (out / v["vehicle"] / "check.json").is_file()
     assert "scheduler was lost" in (out / "fleet.html").read_text()
+
+
+RADAR_RIG = """
+sensors:
+  - {name: radar1, kind: radar, topic: /r1, detector: {rcs_min_dbsm: 5}}
+  - {name: radar2, kind: radar3d, topic: /r2, detector: {rcs_min_dbsm: 5}}
+"""
+
+
+def _radar_bag(path, seed, placements=5):
+    """A 2D and a 3D radar seeing a reflector at ``placements`` places (written with rosbags)."""
+    from rigcal.io.recordings.bag import write_recording
+    from rigcal.recording import RadarFrame
+
+    rng = np.random.default_rng(seed)
+    frames = {"/r1": [], "/r2": []}
+    t = 1.0
+    for k in range(placements):
+        target = np.array([4.0 + k, (-1) ** k * (0.5 + 0.2 * k), 0.1])
+        for topic, sensor, rate, dim in (("/r1", "radar1", 13.0, 2), ("/r2", "radar2", 10.0, 3)):
+            for i in range(int(3 * rate)):
+                pts = np.vstack([target[:dim] + rng.normal(0, 0.02, dim), rng.uniform([1, -3, -0.5], [8, 3, 0.5], (5, 3))[:, :dim]])
+                frames[topic].append(RadarFrame(sensor, int((t + i / rate) * 1e9), pts,
+                                                np.concatenate([[15.0], rng.uniform(-10, 3, 5)])))
+        t += 4.5
+    return write_recording(path, frames, "rosbag1")
+
+
+def test_check_a_recording_detected_first(tmp_path, capsys):
+    rig = tmp_path / "detect_rig.yaml"
+    rig.write_text(RADAR_RIG)
+    assert run(["calibrate", str(_radar_bag(tmp_path / "a.bag", 0)), "--rig", str(rig), "--out", str(tmp_path / "cal"),
+                "--cv-folds", "0", "--reference", "radar2"]) == 0
+    capsys.readouterr()
+    code = run(["check", str(tmp_path / "cal"), str(_radar_bag(tmp_path / "b.bag", 1)), "--rig", str(rig)])
+    out = capsys.readouterr().out
+    assert code in (0, EXIT_CANNOT_TELL), out
+    assert "5 board placements found" in out and "check of" in out and "radar1" in out
+    assert run(["check", str(tmp_path / "cal"), str(tmp_path / "b.bag")]) == 1  # a bag is not a manifest
+    assert capsys.readouterr().err.startswith("rigcal: error: ")

@@ -47,7 +47,7 @@ import numpy as np
 
 from rigcal.dataset import Dataset, SensorKind
 from rigcal.errors import InputError
-from rigcal.geometry.se3 import invert, se3_exp, se3_log
+from rigcal.geometry.se3 import adjoint, invert, se3_exp, se3_log
 from rigcal.problem.configurations import RADAR_PLANE_FREE, build_pairwise
 from rigcal.problem.movement import (
     MoveTest,
@@ -462,17 +462,11 @@ def _sensor_test(ctx: _Context, s: str, partners: Sequence[str], alpha: float, e
     Dw = ctx.D[rows_all] / sig[:, None]
     Ainv, C_new = sandwich(J, Dw, ctx.units, ctx.theta)
     # the stored calibration's uncertainty as it enters the re-estimate (module docstring)
-    V = {}
+    W = {}
     for o in used:
         part = np.concatenate([np.arange(offsets[j], offsets[j + 1]) for j, x in enumerate(other) if x == o])
-        W = Ainv @ (J[part].T @ Jw6[part])
-        V[o] = W @ C_rel[o] @ W.T
-    roots = {o: math.sqrt(max(float(np.trace(v)), 0.0)) for o, v in V.items()}
-    total = sum(roots.values())
-    C_stored = np.zeros((k, k))
-    for o, v in V.items():
-        if roots[o] > 0:
-            C_stored += v * (total / roots[o])
+        W[o] = Ainv @ (J[part].T @ Jw6[part])
+    C_stored = _stored_term(ctx.stored, s, W, C_rel)
     C6 = np.zeros((6, 6))
     C6[np.ix_(fi, fi)] = C_new + C_stored
     H6 = np.zeros((6, 6))
@@ -486,6 +480,33 @@ def _sensor_test(ctx: _Context, s: str, partners: Sequence[str], alpha: float, e
     test = move_test(delta, C6, determined_basis(H6, fi), alpha, ctx.options.power, factor, redundancy)
     boards = len(np.unique(np.concatenate([ctx.problem.observations[i].board for i in sel])))
     return _Test(test, T_new, used, boards, converged, k, exact)
+
+
+def _stored_term(stored: StoredCalibration, s: str, W: Mapping[str, np.ndarray],
+                 C_rel: Mapping[str, np.ndarray]) -> np.ndarray:
+    """Covariance of ``sum_o W_o r_o``: how the stored relative poses' errors ``r_o`` (of
+    ``T_o_s``, covariance ``C_rel[o]``) move the re-estimate of ``s``, ``W_o`` (k, 6) the share
+    of partner ``o``.
+
+    When the file's relative covariances are the joint covariance's, their cross-correlations
+    are unknown: ``Cov(sum W_o r_o) <= sum W_o C_o W_o' / t_o`` for weights ``t`` summing to 1
+    (Cauchy-Schwarz; ``t_o`` proportional to the root of the trace of ``W_o C_o W_o'``, the
+    tightest such bound in the scalar case). Otherwise the relative covariances are the
+    sensors' own combined as independent (:meth:`StoredCalibration.relative_covariance`),
+    ``r_o = e_s - Ad(T_s_o) e_o``, and the same model gives the sum exactly: ``s``'s own stored
+    error enters every pair alike, the partners' errors average."""
+    k = next(iter(W.values())).shape[0]
+    if stored.relative_is_joint:
+        V = {o: w @ C_rel[o] @ w.T for o, w in W.items()}
+        roots = {o: math.sqrt(max(float(np.trace(v)), 0.0)) for o, v in V.items()}
+        total = sum(roots.values())
+        return sum((v * (total / roots[o]) for o, v in V.items() if roots[o] > 0), np.zeros((k, k)))
+    W_sum = sum(W.values())
+    out = W_sum @ stored.sensors[s].covariance @ W_sum.T
+    for o, w in W.items():
+        A = w @ adjoint(stored.T(s, o))
+        out = out + A @ stored.sensors[o].covariance @ A.T
+    return 0.5 * (out + out.T)
 
 
 def _pair_checks(ctx: _Context, after: Mapping[str, np.ndarray]) -> dict[str, PairCheck]:

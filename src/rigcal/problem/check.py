@@ -6,18 +6,24 @@ the new residuals compare with the stored noise model.
 
 **Per sensor.** The sensor's pose is estimated again from the new detections with every other
 sensor held at its stored pose (the pairwise problem of :mod:`rigcal.problem.configurations`
-with one free pose block, solved by :func:`rigcal.problem.solver.solve`; a 2D radar's z, roll
-and pitch held too: it does not measure them). The change ``delta`` from the stored pose is
-tested with a chi-square test (:mod:`rigcal.problem.movement`) under the sum of
+with one free pose block; screened with one Gauss-Newton step from the stored pose, solved by
+:func:`rigcal.problem.solver.solve` where that finds a change; a 2D radar's z, roll and pitch
+held too: it does not measure them). The change ``delta`` from the stored pose is tested with a
+chi-square test (:mod:`rigcal.problem.movement`) under the sum of
 
-* the re-estimate's covariance: the sandwich of the stored noise model
-  (:func:`rigcal.problem.noise.sandwich`; rows weighted by the noise model's variances); and
+* the re-estimate's covariance: the sandwich of the noise model
+  (:func:`rigcal.problem.noise.sandwich`); each pair's rows weighted by the noise model plus what
+  the partner's stored uncertainty adds to them (a poorly known partner weighs less); and
 * the stored calibration's own uncertainty as it enters the re-estimate: the pair with sensor
   ``o`` pulls the estimate by ``W_o r_o``, ``r_o`` the stored error of the relative pose
-  ``T_o_s`` (covariance ``C_o`` from ``calibration.yaml``'s ``relative``) and ``W_o`` its share
-  of the information; ``Cov(sum W_o r_o) <= sum W_o C_o W_o' / t_o`` for any weights ``t`` that
-  sum to 1 (Cauchy-Schwarz; ``t_o`` = the share of the trace of ``W_o``) - a bound that holds
-  whatever the correlation between the stored relative poses is.
+  ``T_o_s`` and ``W_o`` (k, 6) its share of the information (all six directions: a 2D radar's
+  stored z, roll and pitch errors move its in-plane re-estimate); see :func:`_stored_term`.
+
+The noise model is, per component, the larger of the stored one and one estimated from the new
+detections (every pose refitted to them): the stored model tells a pair's noise apart between
+its two sensors only through loops of pairs, and can put one sensor's component at its floor.
+When the residuals of a re-estimate scatter more than the model says, the test becomes an F-test
+with their variance.
 
 Only directions the new boards determine are tested (a sensor paired only with a 2D radar
 is not tested in the directions the radar does not see); a 2D radar's z, roll and pitch never
@@ -30,18 +36,16 @@ a rig of two sensors, or directions only their own pair sees), both are named.
 
 **Per pair.** The residuals at the stored poses against the noise model and the stored
 relative pose's uncertainty (reduced chi-square; ~1 when nothing moved), and again after the
-moved sensors' re-estimates.
-
-The noise model is the stored calibration's: a check is only as good as that model. Pairs
-whose residuals stay far above it although neither sensor moved are reported as a warning.
+moved sensors' re-estimates. Pairs whose residuals stay far above the model although neither
+sensor moved are reported as a warning.
 """
 
 from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, replace
-from typing import Any, Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 import numpy as np
 
@@ -74,6 +78,9 @@ from rigcal.problem.numerics import chi2_sf, single_threaded
 from rigcal.problem.pairs import all_pairs
 from rigcal.problem.solver import ALL_FREE, PoseBlock, Problem, linearise, solve
 from rigcal.problem.stored import StoredCalibration, untestable_directions
+
+if TYPE_CHECKING:
+    from rigcal.problem.result import CalibrationResult
 
 UNCHANGED, MOVED, CANNOT_TELL = "unchanged", "moved", "cannot tell"
 #: verdicts from the worst to the best
@@ -367,6 +374,7 @@ class _Context:
     r: np.ndarray  # (rows,) metric residuals at the stored poses
     J: np.ndarray  # (rows, 6 * sensors) metric Jacobian at the stored poses, every pose free
     cols: dict[str, np.ndarray]  # each sensor's six columns of J
+    relative: dict = field(default_factory=dict)  # relative covariances computed so far
 
 
 def _context(stored: StoredCalibration, dataset: Dataset, options: CheckOptions) -> _Context:
@@ -411,6 +419,14 @@ class _Test:
     exact: bool  # re-estimated by the solver (else one Gauss-Newton step from the stored pose)
 
 
+def _relative_covariance(ctx: _Context, to: str, frm: str) -> np.ndarray:
+    """:meth:`StoredCalibration.relative_covariance`, computed once per check."""
+    key = (to, frm)
+    if key not in ctx.relative:
+        ctx.relative[key] = ctx.stored.relative_covariance(to, frm)
+    return ctx.relative[key]
+
+
 def _sensor_test(ctx: _Context, s: str, partners: Sequence[str], alpha: float, exact: bool = False) -> _Test | None:
     """Sensor ``s`` re-estimated with ``partners`` held at their stored poses, and the test of
     its change (None when it shares no board with any of them). ``exact``: solved to convergence
@@ -425,7 +441,7 @@ def _sensor_test(ctx: _Context, s: str, partners: Sequence[str], alpha: float, e
     k = fi.size
     other = [b if a == s else a for a, b in (ctx.pairs[i] for i in sel)]
     used = tuple(dict.fromkeys(other))
-    C_rel = {o: ctx.stored.relative_covariance(o, s) for o in used}
+    C_rel = {o: _relative_covariance(ctx, o, s) for o in used}
     rows = [ctx.rows[i] for i in sel]
     rows_all = np.concatenate(rows)
     J6 = ctx.J[np.ix_(rows_all, ctx.cols[s])]
@@ -518,7 +534,7 @@ def _pair_checks(ctx: _Context, after: Mapping[str, np.ndarray]) -> dict[str, Pa
     var = ctx.sigma ** 2
     for (frame, observer), rows, b in zip(ctx.pairs, ctx.rows, ctx.problem.observations):
         Jm = ctx.J[np.ix_(rows, ctx.cols[observer])]
-        C = ctx.stored.relative_covariance(frame, observer)
+        C = _relative_covariance(ctx, frame, observer)
         total = var[rows] + np.einsum("ij,jk,ik->i", Jm, C, Jm)
         z2 = ctx.r[rows] ** 2 / np.maximum(total, 1e-30)
         z2_after = r_after[rows] ** 2 / np.maximum(total, 1e-30)
@@ -530,7 +546,7 @@ def _pair_checks(ctx: _Context, after: Mapping[str, np.ndarray]) -> dict[str, Pa
 
 
 def check(
-    calibration: Any,
+    calibration: StoredCalibration | CalibrationResult,
     dataset: Dataset,
     options: CheckOptions = CheckOptions(),
 ) -> CheckResult:
@@ -597,7 +613,7 @@ def _verdicts(ctx: _Context) -> dict[str, SensorCheck]:
         for other in significant:
             if other == worst:
                 continue
-            alt = _sensor_test(ctx, worst, [o for o in active if o not in (worst, other)], alpha, exact=True)
+            alt = _sensor_test(ctx, worst, [o for o in active if o not in (worst, other)], alpha)
             if alt is None or not alt.test.significant:
                 alternatives.append(other)
         t = tests[worst]

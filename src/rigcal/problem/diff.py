@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import TYPE_CHECKING, Any, Mapping
 
 import numpy as np
 
@@ -33,6 +33,9 @@ from rigcal.problem.movement import (
     move_test,
 )
 from rigcal.problem.stored import TANGENT, StoredCalibration, untestable_directions
+
+if TYPE_CHECKING:
+    from rigcal.problem.result import CalibrationResult
 
 
 @dataclass(frozen=True, eq=False)  # holds arrays: compare by identity
@@ -148,7 +151,12 @@ def _as_stored(calibration: Any, what: str) -> StoredCalibration:
     return StoredCalibration.from_result(calibration, what)
 
 
-def diff(old: Any, new: Any, alpha: float = 0.05, power: float = 0.8) -> DiffResult:
+def diff(
+    old: StoredCalibration | CalibrationResult,
+    new: StoredCalibration | CalibrationResult,
+    alpha: float = 0.05,
+    power: float = 0.8,
+) -> DiffResult:
     """The difference of two calibrations of one rig (each a
     :class:`~rigcal.problem.stored.StoredCalibration` or a
     :class:`~rigcal.problem.result.CalibrationResult`); see the module docstring.

@@ -40,12 +40,17 @@ def test_recheck_example_runs_as_written(tmp_path, monkeypatch, capsys):
     calibrate_first, check, calibrate_last, diff = recheck_example()
     assert run(calibrate_first) == 0
     capsys.readouterr()
-    assert run(check) == 0
+    assert run(check) == EXIT_MOVED
     out = " ".join(capsys.readouterr().out.split())  # (the console folds lines at 80 columns)
-    assert "unchanged: every sensor where it was calibrated" in out and "(9 boards)" in out
+    assert "(9 boards): MOVED: camera1" in out
     data = json.loads((root / "prius_check" / "check.json").read_text())
-    p = {n: s["p_value"] for n, s in data["sensors"].items()}
-    assert round(p["camera1"], 3) == 0.030 and round(p["lidar1"], 3) == 0.045 and round(p["radar1"], 2) == 0.96
+    cam, lidar, radar = (data["sensors"][n] for n in ("camera1", "lidar1", "radar1"))
+    assert cam["status"] == "moved" and cam["alternatives"] == ["lidar1"] and round(cam["p_value"], 3) == 0.010
+    assert cam["headline"] == ("moved: 19 +- 8.3 mm, 0.38 +- 0.16 deg (p = 0.010) - or lidar1 moved: the data "
+                               "cannot tell which")
+    assert lidar["status"] == "cannot tell" and round(lidar["p_value"], 3) == 0.014
+    assert radar["status"] == "cannot tell" and "shared only with sensors that moved" in radar["reason"]
+    assert round(cam["detectable_translation_m"] * 1000) == 10 and round(cam["detectable_rotation_deg"], 1) == 0.7
     assert (root / "prius_check" / "check.html").is_file()
     assert run(calibrate_last) == 0
     capsys.readouterr()

@@ -22,9 +22,10 @@ per sensor: 'unchanged', 'moved: 12 mm, 0.40 deg (p < 0.001)' with the direction
 five boards seen by several sensors make a quick check. --out writes check.json and check.html;
 --batch writes OUT/<vehicle>/check.* as each vehicle finishes, then OUT/fleet.html and fleet.json.
 
-exit codes: 0 every sensor unchanged; {EXIT_MOVED} a sensor moved; {EXIT_CANNOT_TELL} none moved but some cannot be told;
-1 error; with --batch: {EXIT_MOVED} if any vehicle has a moved sensor, else {EXIT_PARTIAL} if some vehicles failed, else
-{EXIT_CANNOT_TELL} if some cannot be told; 1 if all failed or the Dask scheduler was lost (the vehicles finished are written)
+exit codes: 0 every sensor unchanged; {EXIT_MOVED} a sensor moved; {EXIT_CANNOT_TELL} none moved but some
+cannot be told; 1 error. With --batch: {EXIT_MOVED} if any vehicle has a moved sensor, else {EXIT_PARTIAL} if
+some vehicles failed, else {EXIT_CANNOT_TELL} if some sensor cannot be told; 1 if all failed or the Dask
+scheduler was lost (the vehicles finished by then are written)
 """
 
 

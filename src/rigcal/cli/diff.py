@@ -16,7 +16,8 @@ per sensor: the translation of its origin (reference frame), the rotation angle 
 whether that is more than both calibrations' uncertainty (a chi-square test; a 2D radar's z, roll
 and pitch are not compared: only its field of view bounds them).
 
-exit codes: 0 every sensor unchanged; {EXIT_MOVED} a sensor moved; {EXIT_CANNOT_TELL} none moved but some cannot be told; 1 error
+exit codes: 0 every sensor unchanged; {EXIT_MOVED} a sensor moved; {EXIT_CANNOT_TELL} none moved but some
+cannot be told; 1 error
 """
 
 

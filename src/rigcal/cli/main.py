@@ -1,9 +1,10 @@
 """``rigcal`` command line: parse -> run(args) -> int. Known errors become one line, exit 1.
 
-Each subcommand is a module of :mod:`rigcal.cli` (``calibrate``, ``check``, ``diff``, ``detect``, ``absolute``,
-``mocap``, ``report``, ``study``, ``urdf``, ``export``, ``demo``) with ``add_parser(subparsers)`` and
-``run(args, console)``; a module imports numpy, scipy, OpenCV, rosbags, matplotlib and rich
-only inside ``run``, so ``rigcal --help`` and ``rigcal COMMAND --help`` start fast.
+Each subcommand is a module of :mod:`rigcal.cli` (``calibrate``, ``check``, ``diff``,
+``detect``, ``absolute``, ``mocap``, ``report``, ``study``, ``urdf``, ``export``, ``demo``) with
+``add_parser(subparsers)`` and ``run(args, console)``; a module imports numpy, scipy, OpenCV,
+rosbags, matplotlib and rich only inside ``run``, so ``rigcal --help`` and ``rigcal COMMAND
+--help`` start fast.
 
 Exit codes: 0 calibrated and consistent; 1 error (bad input, or the data cannot determine the
 result); 2 command-line usage; 3 the result contradicts its own noise model (flagged by the
@@ -11,7 +12,8 @@ consistency check): nothing is written unless --force, which writes it with the 
 4 partial (``rigcal mocap``): the other sensors were calibrated and written, but at least one
 sensor could not be and is reported as not calibrated with its reason (3 takes precedence);
 6 moved (``rigcal check`` / ``diff``: a sensor moved since it was calibrated); 7 cannot tell
-(``check`` / ``diff``: no sensor moved, but some could not be told); 130 interrupted (Ctrl-C); 143 terminated (SIGTERM).
+(``check`` / ``diff``: no sensor moved, but some could not be told); 130 interrupted (Ctrl-C);
+143 terminated (SIGTERM).
 """
 
 from __future__ import annotations

@@ -622,12 +622,13 @@ def _verdicts(ctx: _Context) -> dict[str, SensorCheck]:
             out[other] = _verdict(ctx, other, tests[other], CANNOT_TELL,
                                   f"the data cannot tell whether it or {worst} moved", step, (worst,))
         active = [s for s in active if s != worst and s not in alternatives]
-    # the moved sensors' change against the sensors that did not move (when they share boards)
+    # the moved sensors' change against the sensors that did not move (when they share boards and
+    # that comparison finds the move too; else the comparison that found it stays)
     for name, v in list(out.items()):
         if v.status != MOVED:
             continue
         final = _sensor_test(ctx, name, active, alpha, exact=True)
-        if final is not None and final.test.dof == v.test.dof:
+        if final is not None and final.test.dof == v.test.dof and final.test.significant:
             out[name] = _verdict(ctx, name, final, MOVED, "", v.step, v.alternatives)
     for s in active:
         t = tests.get(s)

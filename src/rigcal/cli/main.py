@@ -1,16 +1,19 @@
 """``rigcal`` command line: parse -> run(args) -> int. Known errors become one line, exit 1.
 
-Each subcommand is a module of :mod:`rigcal.cli` (``calibrate``, ``detect``, ``absolute``,
-``mocap``, ``report``, ``study``, ``urdf``, ``export``, ``demo``) with ``add_parser(subparsers)`` and
-``run(args, console)``; a module imports numpy, scipy, OpenCV, rosbags, matplotlib and rich
-only inside ``run``, so ``rigcal --help`` and ``rigcal COMMAND --help`` start fast.
+Each subcommand is a module of :mod:`rigcal.cli` (``calibrate``, ``check``, ``diff``,
+``detect``, ``absolute``, ``mocap``, ``report``, ``study``, ``urdf``, ``export``, ``demo``) with
+``add_parser(subparsers)`` and ``run(args, console)``; a module imports numpy, scipy, OpenCV,
+rosbags, matplotlib and rich only inside ``run``, so ``rigcal --help`` and ``rigcal COMMAND
+--help`` start fast.
 
 Exit codes: 0 calibrated and consistent; 1 error (bad input, or the data cannot determine the
 result); 2 command-line usage; 3 the result contradicts its own noise model (flagged by the
 consistency check): nothing is written unless --force, which writes it with the verdict;
 4 partial (``rigcal mocap``): the other sensors were calibrated and written, but at least one
 sensor could not be and is reported as not calibrated with its reason (3 takes precedence);
-130 interrupted (Ctrl-C); 143 terminated (SIGTERM).
+6 moved (``rigcal check`` / ``diff``: a sensor moved since it was calibrated); 7 cannot tell
+(``check`` / ``diff``: no sensor moved, but some could not be told); 130 interrupted (Ctrl-C);
+143 terminated (SIGTERM).
 """
 
 from __future__ import annotations
@@ -23,7 +26,7 @@ from typing import Sequence
 
 from rigcal import __version__, interrupts
 from rigcal.cli.args import WrappedHelpFormatter
-from rigcal.cli import absolute, calibrate, demo, detect, export, mocap, report, study, urdf
+from rigcal.cli import absolute, calibrate, check, demo, detect, diff, export, mocap, report, study, urdf
 from rigcal.cli.codes import (
     EXIT_CODES_HELP,
     EXIT_FLAGGED,
@@ -37,7 +40,7 @@ from rigcal.errors import RigcalError
 __all__ = ["EXIT_FLAGGED", "EXIT_INTERRUPTED", "EXIT_PARTIAL", "EXIT_TERMINATED", "Terminated", "entry", "run"]
 
 #: the subcommands, in the order ``rigcal --help`` lists them
-COMMANDS = (calibrate, detect, absolute, mocap, report, study, urdf, export, demo)
+COMMANDS = (calibrate, check, diff, detect, absolute, mocap, report, study, urdf, export, demo)
 
 EPILOG = f"""Run `rigcal COMMAND --help` for a command's options; -v/--verbose may come before or
 after COMMAND.

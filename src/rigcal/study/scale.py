@@ -53,9 +53,11 @@ class Runner:
         return max(1, len(self.client.scheduler_info().get("workers", {})))
 
     def map(self, fn: Callable[[Any, Any], Any], items: Sequence[Any], shared: Any = None,
-            progress: Progress | None = None, name: str = "task") -> list[Any]:
+            progress: Progress | None = None, name: str = "task",
+            on_result: Callable[[int, Any], None] | None = None) -> list[Any]:
         """``[fn(shared, item) for item in items]``, in item order. An exception raised by a
-        task is raised here (the remaining tasks are cancelled)."""
+        task is raised here (the remaining tasks are cancelled). ``on_result(index, result)`` is
+        called in this process as each item's result arrives (e.g. to write it at once)."""
         items = list(items)
         total = len(items)
         if progress:
@@ -64,6 +66,8 @@ class Runner:
             out = []
             for i, item in enumerate(items):
                 out.append(fn(shared, item))
+                if on_result:
+                    on_result(i, out[-1])
                 if progress:
                     progress(i + 1, total)
             return out
@@ -88,6 +92,9 @@ class Runner:
                 at = index[fut.key]
                 out[at:at + len(part)] = part
                 done += len(part)
+                if on_result:
+                    for j, value in enumerate(part):
+                        on_result(at + j, value)
                 if progress:
                     progress(done, total)
         finally:

@@ -151,9 +151,10 @@ def run_prius(args, console) -> int:
     from rigcal.study import prius
     from rigcal.study.scale import task_runner
 
-    manifest = args.manifest
+    manifest, shown = args.manifest, args.manifest  # shown: in study.json, never made absolute
     if manifest is None:
         manifest = Path(__file__).resolve().parents[3] / "examples" / "prius" / "rig.yaml"
+        shown = "examples/prius/rig.yaml"
         if not manifest.is_file():
             raise InputError("no manifest given and examples/prius/rig.yaml not found beside the package")
     dataset = load_manifest(manifest)
@@ -185,14 +186,7 @@ def run_prius(args, console) -> int:
                                           runner=runner, progress=progress(" + ".join(names[t] for t in drawn)))
                 seconds[" + ".join(drawn)] = round(time.perf_counter() - t0, 1)
             where = runner.description
-    meta = {"manifest": str(manifest), "draws": args.draws, "boards": args.boards, "seed": args.seed,
-            "draws_default": {"III": 200, "fig7": prius.FIGURE_DRAWS, "fig8": prius.FIGURE_DRAWS},
-            "rmse_on": {"median_mm": "all boards", "heldout_median_mm": "boards not in the draw",
-                        "fig8": "the noise-free detections"},
-            "fig7_k": list(prius.FIG7_K), "fig8_sigma_m": list(prius.FIG8_SIGMA_M),
-            "figure_configurations": "MCPE with the lidar as reference, PSE, FCPE (as the paper)",
-            "paper_mm": "from the paper's tables and text only; its Figs. 7 and 8 are plots (not read off)",
-            "scheduler": where, "wall_time_s": seconds}
+    meta = prius.study_meta(shown, tables, args.draws, args.boards, args.seed, where, seconds)
     text, data = prius.markdown(rows), prius.study_json(rows, meta)
     if args.out:
         import json

@@ -100,6 +100,8 @@ def regular_file(path: str | os.PathLike[str], what: str = "file", kind: str = "
         raise InputError(f"{p}: {what} not found") from None
     except OSError as exc:
         raise InputError(f"{p}: cannot read {what}: {os_error_text(exc)}") from None
+    except ValueError:  # an embedded NUL byte
+        raise InputError(f"{str(p)!r}: cannot read {what}: the path contains a NUL byte") from None
     if not stat.S_ISREG(st.st_mode):
         raise InputError(f"{p}: is {_kind_name(st.st_mode)}, expected a {what} (a regular file)")
     limit = MAX_BYTES[kind]

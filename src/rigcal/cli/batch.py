@@ -123,14 +123,34 @@ def run_batch(args, console) -> int:
     written = [o for o in run.outcomes if o.status in (WRITTEN, FORCED)]
     console.print(f"{len(entries) - len(failed) - len(flagged)} consistent, {len(flagged)} flagged, "
                   f"{len(failed)} failed; results in {printable(out)}/<dataset>/", markup=False, soft_wrap=True)
-    if run.lost:
-        missing = run.missing
-        shown = ", ".join(printable(n) for n in missing[:10]) + (", ..." if len(missing) > 10 else "")
-        sys.stderr.write(f"rigcal: error: --scheduler {printable(args.scheduler)}: {run.lost}; "
-                         f"{len(missing)} dataset{'s' if len(missing) != 1 else ''} not calibrated ({shown}); "
-                         f"the {len(written)} written are complete in {printable(out)}/\n")
+    if failed:  # one line on stderr says what is missing
+        sys.stderr.write(f"rigcal: error: {_missing_line(run, failed, written, out, args.scheduler)}\n")
     if len(failed) == len(entries):
         return 1
     if flagged:
         return EXIT_FLAGGED
     return EXIT_PARTIAL if failed else 0
+
+
+def _names(outcomes, limit: int = 8) -> str:
+    names = [printable(o.entry.name) for o in outcomes]
+    return ", ".join(names[:limit]) + (f", ... ({len(names)} in all)" if len(names) > limit else "")
+
+
+def _missing_line(run, failed, written, out: Path, scheduler: str) -> str:
+    """The one line that ends a batch with datasets not calibrated: which, and why in short (the
+    table has each one's reason)."""
+    from rigcal.fleet import MISSING
+
+    missing = [o for o in failed if o.status == MISSING]
+    others = [o for o in failed if o.status != MISSING]
+    parts = []
+    if run.lost:
+        parts.append(f"--scheduler {printable(scheduler)}: {run.lost}; not calibrated: {_names(missing)}")
+    elif missing:
+        parts.append(f"not calibrated: {_names(missing)} ({printable(missing[0].error)})")
+    if others:
+        parts.append(f"failed: {_names(others)} (see the table)")
+    total = len(run.outcomes)
+    done = f"{len(written)} of {total} datasets written" + (f", complete, in {printable(out)}/" if written else "")
+    return "; ".join(parts) + f"; {done}"

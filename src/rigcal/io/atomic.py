@@ -167,10 +167,12 @@ def check_output_folder(path: str | os.PathLike[str], inputs: tuple = (), what: 
     for source in inputs:
         try:
             same = st is not None and os.path.samefile(target, source)
+            inside = st is not None and Path(target).resolve() in Path(source).resolve().parents
         except (OSError, ValueError):
-            same = False
-        if same:
-            raise InputError(f"{what} {target}: is an input of this run ({source}); give another output folder")
+            same = inside = False
+        if same or inside:
+            how = "is" if same else "holds"
+            raise InputError(f"{what} {target}: {how} an input of this run ({source}); give another output folder")
     try:
         _replaceable(target)
     except InputError as exc:

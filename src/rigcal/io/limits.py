@@ -85,7 +85,7 @@ def path_stat(path: str | os.PathLike[str], what: str = "file") -> os.stat_resul
     except (FileNotFoundError, NotADirectoryError):
         return None
     except (OSError, ValueError) as exc:  # ValueError: an embedded NUL byte
-        reason = os_error_text(exc) if isinstance(exc, OSError) else "invalid path"
+        reason = os_error_text(exc) if isinstance(exc, OSError) else "invalid path (it contains a NUL byte)"
         raise InputError(f"{Path(path)}: cannot use {what}: {reason}") from None
 
 

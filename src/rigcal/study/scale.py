@@ -431,7 +431,7 @@ def _greeting(sock: socket.socket, deadline: float) -> str | None:
     if head is None:
         return not_dask.format(f"sent nothing within {PROBE_TIMEOUT_S:g} s (a Dask scheduler greets at once)")
     if len(head) < 8:
-        return not_dask.format(f"sent {_bytes(head)} and closed the connection")
+        return not_dask.format(f"sent {_bytes(head)} and then nothing")
     (size,) = struct.unpack("<Q", head)
     if not 16 <= size <= _MAX_GREETING:
         return not_dask.format(f"began with {_bytes(head)}")
@@ -557,5 +557,11 @@ def quiet_dask_logs() -> None:
     scheduler's and workers' comings and goings, and a lost scheduler as ERRORs with tracebacks
     - also from its event loop's thread after the client was closed -, where the runner says
     in one line what happened."""
-    for name in ("distributed", "bokeh", "tornado"):
+    import distributed  # noqa: F401 - it sets its loggers' levels when imported
+
+    prefixes = ("distributed", "bokeh", "tornado")
+    for name in list(logging.root.manager.loggerDict):  # its own levels: distributed.client, ...
+        if name.split(".")[0] in prefixes:
+            logging.getLogger(name).setLevel(logging.CRITICAL)
+    for name in prefixes:
         logging.getLogger(name).setLevel(logging.CRITICAL)

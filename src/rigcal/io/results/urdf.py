@@ -506,10 +506,10 @@ def _refuse_cycles(joints: Mapping[str, Joint], parent_joint: Mapping[str, str],
         link = start
         while link in parent_joint and link not in done:
             if link in on_path:
-                cycle = path[path.index(link):]
-                names = ", ".join(f"'{parent_joint[c]}'" for c in cycle)
-                line = min(joints[parent_joint[c]].line for c in cycle)
-                raise InputError(f"{source}: line {line}: joints {names} form a cycle through link '{link}'; "
+                cycle = sorted((joints[parent_joint[c]] for c in path[path.index(link):]), key=lambda j: j.line)
+                names = ", ".join(f"'{j.name}'" for j in cycle)
+                links = ", ".join(sorted(j.child for j in cycle))
+                raise InputError(f"{source}: line {cycle[0].line}: joints {names} form a cycle (links {links}); "
                                  "a URDF is a tree")
             on_path.add(link)
             path.append(link)

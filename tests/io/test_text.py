@@ -28,3 +28,13 @@ def test_load_json_values():
 def test_printable_escapes_control_characters_only():
     assert printable("car\n1\ttab\r\x00\x1b\u2028 é 日本 ok") == "car\\n1\\ttab\\r\\x00\\x1b\\u2028 é 日本 ok"
     assert printable(ValueError("a\nb")) == "a\\nb"
+
+
+@pytest.mark.parametrize("loader", ["rigcal.io.config.vicon_json:load_json", "rigcal.io.config.camchain:_load_json"])
+@pytest.mark.parametrize("text, match", [('{"a": ' + "9" * 5000 + "}", "4300 digits"), ("[" * 100000, "nested too deeply")])
+def test_the_other_json_readers_name_the_file_too(loader, text, match):
+    import importlib
+
+    module, name = loader.split(":")
+    with pytest.raises(InputError, match=rf"x\.json: .*{match}"):
+        getattr(importlib.import_module(module), name)(text, "x.json")

@@ -245,6 +245,8 @@ class _DaskMap:
                                      "the worker)")
                 continue
             except (CancelledError, OSError):
+                if fut.status == "error":  # the task's own exception (an OSError it raised)
+                    raise
                 # its worker (or the worker holding the shared data) was lost, or the scheduler
                 lost = self._health(worker_lost=True)
                 if lost:

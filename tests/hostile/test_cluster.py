@@ -338,16 +338,17 @@ def test_batch_on_a_scheduler_that_dies_writes_what_finished(cli_start, fleet, t
         _, err = proc.communicate(timeout=120)
     err = err.decode()
     written = sorted(p.name for p in out.iterdir() if not p.name.startswith("."))
-    assert proc.returncode == (4 if len(written) < 6 else 0), err
+    # the first result was written while the others still ran (one worker, about a second each)
+    assert 1 <= len(written) < 6, (written, err)
+    assert proc.returncode == 4, err
     assert "Traceback" not in err, err
     for name in written:
         assert {p.name for p in (out / name).iterdir()} >= {"calibration.yaml", "report.json", "report.html"}
-    if len(written) < 6:
-        errors = [line for line in err.splitlines() if line.startswith("rigcal: error:")]
-        assert len(errors) == 1, err
-        missing = [f"car{k}" for k in range(6) if f"car{k}" not in written]
-        assert "scheduler" in errors[0] and all(m in errors[0] for m in missing), errors[0]
-        assert f"{len(written)} of 6 datasets written" in errors[0]
+    errors = [line for line in err.splitlines() if line.startswith("rigcal: error:")]
+    assert len(errors) == 1, err
+    missing = [f"car{k}" for k in range(6) if f"car{k}" not in written]
+    assert "scheduler" in errors[0] and all(m in errors[0] for m in missing), errors[0]
+    assert f"{len(written)} of 6 datasets written" in errors[0]
 
 
 @pytest.fixture

@@ -249,8 +249,10 @@ def test_a_scheduler_without_workers_is_refused_within_seconds(cli, refused, fle
     """Was: a traceback, "TimeoutError: No valid workers found"."""
     from distributed import LocalCluster
 
+    from rigcal.study.scale import NO_HTTP_PORT
+
     out = tmp_path / "out"
-    with LocalCluster(n_workers=0, dashboard_address=None, scheduler_kwargs={"dashboard": False}) as cluster:
+    with LocalCluster(n_workers=0, dashboard_address=None, scheduler_kwargs=NO_HTTP_PORT) as cluster:
         address = cluster.scheduler_address
         t0 = time.monotonic()
         proc = cli("calibrate", "--batch", fleet / "car0", fleet / "car1", "--out", out, "--scheduler", address,

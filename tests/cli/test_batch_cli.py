@@ -121,9 +121,13 @@ def test_batch_on_dask_is_byte_identical_to_calibrate_whatever_blas_threads(pse_
     cars = [pse_fleet / "sim1"]
     assert run(["calibrate", "--batch", *map(str, cars), "--mode", "pse", "--cv-folds", "0", "--out", str(out),
                 "--scheduler", dask_cluster.scheduler_address]) == 0
+    serial = tmp_path / "serial"
+    with threadpool_limits(limits=2, user_api="blas"):
+        assert run(["calibrate", "--batch", *map(str, cars), "--mode", "pse", "--cv-folds", "0", "--out", str(serial),
+                    "--scheduler", "serial"]) == 0
     for car in cars:
         alone = tmp_path / f"alone_{car.name}"
         with threadpool_limits(limits=2, user_api="blas"):
             assert run(["calibrate", str(car), "--mode", "pse", "--cv-folds", "0", "--out", str(alone)]) == 0
-        assert _tree(out / car.name) == _tree(alone)  # byte for byte
+        assert _tree(out / car.name) == _tree(alone) == _tree(serial / car.name)  # byte for byte
     capsys.readouterr()

@@ -47,6 +47,8 @@ def _check_out(out: Path, entries) -> list:
         raise InputError(f"--out {out}: exists and is not a folder; --batch writes OUT/<dataset>/ folders into it")
     if st is None:
         check_output_folder(out)  # its parent can be written
+    elif not os.access(out, os.W_OK | os.X_OK):
+        raise InputError(f"--out {out}: no permission to write in it")
     checked = []
     for e in entries:
         if e.problem is None:

@@ -152,7 +152,8 @@ def entry() -> None:
     except KeyboardInterrupt:  # Ctrl-C while the arguments were parsed
         sys.stderr.write("\nrigcal: interrupted\n")
         code = EXIT_INTERRUPTED
-    except Terminated:
+    except Terminated:  # SIGTERM while the arguments were parsed
+        sys.stderr.write("rigcal: terminated\n")
         code = EXIT_TERMINATED
     except SystemExit as exc:  # argparse: --help, --version, a usage error (its message printed)
         code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)

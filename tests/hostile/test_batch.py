@@ -148,3 +148,14 @@ def test_control_characters_in_a_manifest_path_stay_on_one_line(cli, refused, tm
     bad = tmp_path / "a\nb"
     bad.mkdir()
     refused(cli("calibrate", bad / "rig.yaml", "--out", tmp_path / "out"), "a\\nb", code=1)
+
+
+def test_plain_calibrate_checks_out_before_any_work(cli, refused, fleet, tmp_path):
+    """The same checks for one dataset. Its own folder as --out is an input: a dataset folder that
+    rigcal wrote (marked as its output) was replaced by the results - the input lost."""
+    before = {p.name: p.read_bytes() for p in (fleet / "car0").iterdir()}
+    refused(cli("calibrate", fleet / "car0", "--out", fleet / "car0"), "--out", "an input of this run", code=1)
+    assert {p.name: p.read_bytes() for p in (fleet / "car0").iterdir()} == before
+    (tmp_path / "f").write_text("mine")
+    refused(cli("calibrate", fleet / "car0", "--out", tmp_path / "f"), "--out", "exists and is not a folder", code=1)
+    assert (tmp_path / "f").read_text() == "mine"

@@ -103,3 +103,23 @@ def test_parse_urdf_refuses_every_cycle():
     tree = URDF.replace('<child link="arm_a"/>', '<child link="arm_d"/>').replace(
         '<link name="arm_c"/>', '<link name="arm_c"/><link name="arm_d"/>')
     assert set(parse_urdf(tree, "x.urdf").joints) == {"lidar_joint", "a_to_b", "b_to_c", "c_to_a"}
+
+
+@pytest.mark.parametrize("command", ["absolute", "mocap", "detect"])
+def test_out_holding_an_input_is_refused_before_any_work(cli, refused, tmp_path, command):
+    """Issue #22's "no input overwritten": a folder rigcal wrote (a dataset, a result) may be
+    replaced by a new set of files - unless the run reads from it."""
+    from rigcal.io.atomic import mark_output
+
+    folder = tmp_path / "inputs"
+    folder.mkdir()
+    mark_output(folder)  # written by rigcal earlier
+    for name in ("rig.yaml", "scan.ply", "labels.yaml", "mocap.yaml", "detect.yaml"):
+        (folder / name).write_text("x: 1\n")
+    argv = {"absolute": ["absolute", folder / "rig.yaml", "--external", "s", "--scan", folder / "scan.ply", "--labels",
+                         folder / "labels.yaml"],
+            "mocap": ["mocap", folder / "mocap.yaml"],
+            "detect": ["detect", folder, "--rig", folder / "detect.yaml"]}[command]
+    before = {p.name: p.read_bytes() for p in folder.iterdir()}
+    refused(cli(*argv, "--out", folder), f"--out {folder}", "an input of this run", code=1)
+    assert {p.name: p.read_bytes() for p in folder.iterdir()} == before

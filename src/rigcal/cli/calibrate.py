@@ -122,6 +122,10 @@ def run(args, console) -> int:
     from rigcal.problem.calibrate import calibrate
 
     files = args.lidar or args.camera or args.radar or args.radar3d
+    inputs = (args.manifest, args.rig, args.initial, args.ignore, *args.lidar, *args.camera, *args.radar, *args.radar3d)
+    from rigcal.io.atomic import check_output_folder
+
+    check_output_folder(args.out, inputs=tuple(p for p in inputs if p))  # before any work
     if args.manifest and files:
         raise InputError("give either a manifest or --lidar/--camera/--radar files, not both")
     detection = None

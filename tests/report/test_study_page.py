@@ -81,7 +81,7 @@ def test_rigcal_report_writes_study_html(tmp_path: Path, capsys):
     (tmp_path / "study.json").write_text("{not json")
     assert run(["report", str(tmp_path)]) == 1
     err = capsys.readouterr().err
-    assert "study.json: not JSON" in err and "Traceback" not in err
+    assert "study.json: not valid JSON" in err and "Traceback" not in err
 
 
 def _meta_rows(html: str) -> dict[str, str]:

@@ -4,8 +4,6 @@ its calibration (:func:`rigcal.problem.check.check`); ``--batch``: a fleet on Da
 from __future__ import annotations
 
 import sys
-from collections.abc import Iterator
-from contextlib import contextmanager, nullcontext
 
 from rigcal.cli.args import number, subcommand
 from rigcal.cli.calibrate import SCHEDULER_HELP
@@ -147,107 +145,72 @@ def print_check(result, console) -> None:
 
 
 def check_task(options, item):
-    """One vehicle of a fleet: ``check(stored, dataset)`` as plain data, or the error's message."""
-    from rigcal.errors import RigcalError
+    """One vehicle of a fleet on a worker: ``check(stored, dataset)`` as plain data (a
+    RigcalError fails that vehicle alone, :func:`rigcal.fleet.run_fleet`)."""
     from rigcal.problem.check import check
 
     stored, dataset = item
-    try:
-        return check(stored, dataset, options).to_dict(), None
-    except RigcalError as exc:
-        return None, str(exc)
-
-
-def lost_cluster_errors() -> tuple[type[BaseException], ...]:
-    """What a map raises when the Dask scheduler (or the connection to it) is lost."""
-    import concurrent.futures
-
-    return (OSError, TimeoutError, concurrent.futures.CancelledError)
-
-
-@contextmanager
-def _silenced(prefix: str) -> Iterator[None]:
-    """Every logger whose name starts with ``prefix`` silent in the block (a lost scheduler is
-    one error line, not the tracebacks distributed logs while it tries to reconnect and closes)."""
-    import importlib
-    import logging
-
-    try:  # its loggers exist once it is imported
-        importlib.import_module(prefix)
-    except ImportError:
-        pass
-    names = [prefix] + [n for n in logging.root.manager.loggerDict if n.startswith(prefix + ".")]
-    saved = {n: logging.getLogger(n).disabled for n in names}
-    for n in names:
-        logging.getLogger(n).disabled = True
-    try:
-        yield
-    finally:
-        for n, disabled in saved.items():
-            logging.getLogger(n).disabled = disabled
+    return check(stored, dataset, options).to_dict()
 
 
 def run_batch(args, console) -> int:
     import time
     from pathlib import Path
 
-    from rigcal.cli.batch import _names
     from rigcal.cli.output import make_console, progress_bar, table
-    from rigcal.errors import RigcalError
+    from rigcal.errors import InputError, RigcalError, printable
+    from rigcal.fleet import FAILED, MISSING, fleet_entries, run_fleet
     from rigcal.io.atomic import staged_folder
     from rigcal.io.dataset.manifest import load_manifest
     from rigcal.io.results.check_report import vehicle_link, write_check, write_fleet
     from rigcal.io.results.stored import read_stored_calibration
     from rigcal.problem.check import CheckOptions
     from rigcal.report.check_page import fleet_summary, vehicle_row
-    from rigcal.study.scale import task_runner
+    from rigcal.study.scale import LOCAL, SERIAL, check_scheduler
 
-    names = _names(args.batch)
     out = Path(args.out)
-    rows: dict[str, dict] = {}
-    items = {}
-    for d, name in zip(args.batch, names):
-        cal = Path(args.calibrations) / name / "calibration.yaml" if args.calibrations else Path(d) / "calibration.yaml"
-        try:
-            items[name] = (read_stored_calibration(cal), load_manifest(d))
-        except RigcalError as exc:
-            rows[name] = vehicle_row(name, None, str(exc))
-    todo = [n for n in names if n in items]
+    entries, notes = fleet_entries(args.batch)
+    if args.scheduler.strip() not in (LOCAL, SERIAL):
+        check_scheduler(args.scheduler.strip())  # before anything is read or computed
+    for note in notes:
+        console.print(f"note: {note}", markup=False, soft_wrap=True)
+    if not entries:
+        raise InputError("--batch: no vehicle folder among the arguments (" + ", ".join(
+            printable(a) for a in args.batch[:3]) + (", ..." if len(args.batch) > 3 else "") + ")")
+    names = [e.name for e in entries]
 
-    def finished(i: int, value) -> None:  # written as each vehicle finishes
-        name = todo[i]
-        data, error = value
-        if data is None:
-            rows[name] = vehicle_row(name, None, error)
-            return
-        try:
-            with staged_folder(out / name) as stage:
-                write_check(data, stage, title=f"{name}: check of {data.get('calibration', '')}")
-        except RigcalError as exc:
-            rows[name] = vehicle_row(name, None, f"checked ({data['status']}) but not written: {exc}")
-            return
-        rows[name] = vehicle_row(name, data, href=vehicle_link(name))
+    def load(entry):
+        root = Path(args.calibrations) / entry.name if args.calibrations else entry.path
+        return read_stored_calibration(root / "calibration.yaml"), load_manifest(entry.path)
 
-    lost = None
+    def write(entry, item, data) -> str:  # in this process, as each vehicle finishes
+        with staged_folder(out / entry.name) as stage:
+            write_check(data, stage, title=f"{entry.name}: check of {data.get('calibration', '')}")
+        return data["status"]
+
     t0 = time.monotonic()
     progress_console = make_console(to_stderr=True)
-    quiet = _silenced("distributed") if args.scheduler != "serial" else nullcontext()
-    with progress_bar(progress_console, eta=True) as bar, quiet:
-        task = bar.add_task("checking", total=len(todo), unit="vehicles")
-        with task_runner(args.scheduler, tasks=len(todo)) as runner:
-            try:
-                runner.map(check_task, [items[n] for n in todo], shared=CheckOptions(alpha=args.alpha), name="check",
-                           progress=lambda d, t: bar.update(task, completed=d, total=t), on_result=finished)
-            except lost_cluster_errors() as exc:
-                lost = exc
-    for name in todo:
-        rows.setdefault(name, vehicle_row(name, None, "not checked: the Dask scheduler was lost", status="not checked"))
+    with progress_bar(progress_console, eta=True) as bar:
+        task = bar.add_task("checking", total=len(entries), unit="vehicles")
+        run = run_fleet(entries, load, check_task, write, shared=CheckOptions(alpha=args.alpha),
+                        scheduler=args.scheduler, name="check",
+                        progress=lambda d, t: bar.update(task, completed=d, total=t))
+    rows = []
+    for o in run.outcomes:
+        if o.status == MISSING:
+            rows.append(vehicle_row(o.entry.name, None, f"not checked: {o.error}", status="not checked"))
+        elif o.status == FAILED:
+            rows.append(vehicle_row(o.entry.name, None, o.error if o.value is None
+                                    else f"checked ({o.value['status']}) but not written: {o.error}"))
+        else:
+            rows.append(vehicle_row(o.entry.name, o.value, href=vehicle_link(o.entry.name)))
     note = ""
-    if lost is not None:
-        done = sum(1 for n in todo if rows[n]["status"] != "not checked")
-        note = (f"the Dask scheduler was lost after {done} of {len(todo)} vehicles "
-                f"({type(lost).__name__}: {' '.join(str(lost).split())}); the others were not checked")
-    summary = fleet_summary([rows[n] for n in names], args.alpha, note)
+    missing = run.missing
+    if run.lost:
+        shown = ", ".join(missing[:8]) + (f", ... ({len(missing)} in all)" if len(missing) > 8 else "")
+        note = (f"the Dask scheduler was lost after {len(entries) - len(missing)} of {len(entries)} vehicles "
+                f"({run.lost}); not checked: {shown}")
+    summary = fleet_summary(rows, args.alpha, note)
     write_fleet(summary, out)
     t = table(f"check --batch: {len(names)} vehicles, {time.monotonic() - t0:.1f} s (worst first)",
               ("vehicle", "status", "worst sensor: verdict"))
@@ -256,9 +219,9 @@ def run_batch(args, console) -> int:
     console.print(t)
     counts = summary["counts"]
     console.print(", ".join(f"{n} {s}" for s, n in counts.items() if n) + f"; {out}/fleet.html")
-    if lost is not None:
-        raise RigcalError(f"--scheduler {args.scheduler}: {note}; written: {out}/fleet.html and each finished "
-                          "vehicle's folder")
+    if missing:
+        raise RigcalError(f"--scheduler {printable(args.scheduler)}: {note}; written: {out}/fleet.html and each "
+                          "finished vehicle's folder")
     if counts["failed"] == len(names):
         return 1
     if counts["moved"]:

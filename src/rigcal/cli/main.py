@@ -35,7 +35,7 @@ from rigcal.cli.codes import (
     EXIT_TERMINATED,
     Terminated,
 )
-from rigcal.errors import RigcalError
+from rigcal.errors import RigcalError, printable
 
 __all__ = ["EXIT_FLAGGED", "EXIT_INTERRUPTED", "EXIT_PARTIAL", "EXIT_TERMINATED", "Terminated", "entry", "run"]
 
@@ -101,7 +101,7 @@ def run(argv: Sequence[str] | None = None) -> int:
             return _interrupted(interrupts.requested())
         return code
     except RigcalError as exc:
-        sys.stderr.write(f"rigcal: error: {exc}\n")
+        sys.stderr.write(f"rigcal: error: {printable(exc)}\n")
         return 1
     except KeyboardInterrupt:
         return _interrupted(KeyboardInterrupt)
@@ -148,6 +148,8 @@ def _on_signal(signum, frame) -> None:
     raise it in the main thread as KeyboardInterrupt / Terminated."""
     exc_type = KeyboardInterrupt if signum == signal.SIGINT else Terminated
     interrupts.request(exc_type)
+    if interrupts.deferring():  # e.g. a Dask cluster starting: raised when it is whole
+        return
     raise exc_type()
 
 
@@ -169,23 +171,51 @@ def entry() -> None:
     except KeyboardInterrupt:  # Ctrl-C while the arguments were parsed
         sys.stderr.write("\nrigcal: interrupted\n")
         code = EXIT_INTERRUPTED
-    except Terminated:
+    except Terminated:  # SIGTERM while the arguments were parsed
+        sys.stderr.write("rigcal: terminated\n")
         code = EXIT_TERMINATED
-    if interrupts.requested():
-        _exit_now(code)
-    sys.exit(code)
+    except SystemExit as exc:  # argparse: --help, --version, a usage error (its message printed)
+        code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
+        if not isinstance(exc.code, (int, type(None))):
+            sys.stderr.write(f"{exc.code}\n")
+    _exit_now(code)
 
 
 def _exit_now(code: int) -> None:
-    """End an interrupted run without the interpreter's finalization. Its outputs were removed
-    or left whole on the way out (staged folders, atomic files, the Dask cluster in its
-    ``with``); what finalization would still run are the teardowns of extension modules, and an
-    interrupt that landed while one was being imported can leave it half initialised - its
-    teardown then aborts the process (seen once in CI: "Fatal Python error: PyThreadState_Get"
-    after "rigcal: interrupted", exit -6 instead of 130)."""
+    """End the run without the interpreter's finalization, whose teardown a signal must not
+    cut short: Python puts the default signal handlers back there, so a SIGTERM that landed
+    after the output was published killed the process with no line (exit -15). From here on
+    a signal is only noted; one that arrives before the end makes it exit 130 / 143 with its
+    line (the output stays, complete).
+
+    A run that finished runs its exit handlers (``atexit``); an interrupted one only
+    multiprocessing's (the semaphores of a Dask cluster's workers, else reported as leaked):
+    its outputs were removed or left whole on the way out (staged folders, atomic files, the
+    Dask cluster in its ``with``), and an interrupt that landed while an extension module was
+    being imported can leave it half initialised - its teardown then aborts the process (seen
+    once in CI: "Fatal Python error: PyThreadState_Get" after "rigcal: interrupted", exit -6
+    instead of 130)."""
+    import atexit
     import os
 
-    logging.shutdown()
+    late: list[int] = []
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        try:
+            signal.signal(sig, lambda signum, frame: late.append(signum))
+        except ValueError:  # not the main thread (an embedding application): nothing to guard
+            pass
+    if interrupts.requested():
+        mp = sys.modules.get("multiprocessing.util")
+        if mp is not None:
+            try:
+                mp._exit_function()
+            except Exception:  # noqa: BLE001 - best effort on the way out
+                pass
+        logging.shutdown()
+    else:
+        atexit._run_exitfuncs()
+        if late:
+            code = _interrupted(KeyboardInterrupt if late[0] == signal.SIGINT else Terminated)
     for stream in (sys.stdout, sys.stderr):
         try:
             stream.flush()

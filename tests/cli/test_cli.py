@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import time
 from pathlib import Path
 
 import numpy as np
@@ -133,10 +132,7 @@ def test_calibrate_with_a_missed_camera_board(tmp_path, sim, capsys):
 
 def test_demo(tmp_path, capsys):
     out = tmp_path / "demo"
-    t0 = time.perf_counter()
     assert run(["demo", "--detections-only", "--out", str(out), "--boards", "15"]) == 0
-    elapsed = time.perf_counter() - t0
-    assert elapsed < 20, elapsed
     assert (out / "dataset" / "rig.yaml").is_file()
     for mode in ("mcpe", "fcpe", "pse"):
         for f in ("calibration.yaml", "calibration.launch", "calibration.png"):

@@ -13,6 +13,7 @@ EPILOG = """examples:
   rigcal calibrate --lidar lidar.csv --camera camera.csv --radar radar.csv --mode fcpe --out results/
   rigcal calibrate --batch fleet/car01 fleet/car02 fleet/car03 --out results/   # results/car01/ ...
   rigcal calibrate --batch fleet/* --out results/ --scheduler tcp://10.0.0.5:8786
+  rigcal calibrate rig.yaml --initial nominal.yaml --prior radar1:z_m=0.02,roll_deg=1,pitch_deg=1 --out results/
 
 writes calibration.yaml, <sensor>.yaml, calibration.launch and report.html (open it in a
 browser: verdict, poses, residuals, 3D detections, coverage; works offline)
@@ -62,9 +63,19 @@ def add_parser(sub) -> None:
     c.add_argument(
         "--hold-radar-plane",
         action="store_true",
-        help="hold each 2D radar's z, roll and pitch at the initial guess",
+        help="hold each 2D radar's z, roll and pitch at the initial guess (the limit of a prior "
+        "z_m=0,roll_deg=0,pitch_deg=0)",
     )
-    c.add_argument("--initial", metavar="FILE", help="initial guesses: a previous calibration.yaml")
+    c.add_argument("--initial", metavar="FILE",
+                   help="initial guesses and the nominal mounting priors are around: a previous "
+                   "calibration.yaml")
+    c.add_argument(
+        "--prior", action="append", default=[], metavar="[SENSOR:]KEY=TOL,...",
+        help="soft prior around the --initial pose: 1-sigma tolerances along / about the sensor's "
+        "own axes, keys x_m y_m z_m roll_deg pitch_deg yaw_deg (0 holds a direction); without "
+        "SENSOR: for every sensor without its own prior (the manifest's 'prior'); repeatable. "
+        "docs/uncertainty.md",
+    )
     c.add_argument("--cv-folds", type=count(0, 1000), default=5, metavar="N", help="leave-boards-out folds (0 = off)")
     plot = c.add_mutually_exclusive_group()
     plot.add_argument("--plot", action="store_true",
@@ -85,9 +96,22 @@ def add_parser(sub) -> None:
 
 def options_from(args):
     """The :class:`CalibrationOptions` the command-line options ask for."""
+    from rigcal.errors import InputError
     from rigcal.io.results.calibration_files import read_initial_poses
     from rigcal.problem.calibrate import CalibrationOptions
+    from rigcal.problem.priors import parse_prior_text
 
+    default, per_sensor = None, {}
+    for text in getattr(args, "prior", None) or []:
+        sensor, prior = parse_prior_text(text)
+        if sensor is None:
+            if default is not None:
+                raise InputError(f"--prior {text!r}: a second default prior (give one, or SENSOR:...)")
+            default = prior
+        elif sensor in per_sensor:
+            raise InputError(f"--prior {text!r}: a second prior for '{sensor}'")
+        else:
+            per_sensor[sensor] = prior
     return CalibrationOptions(
         mode=args.mode,
         reference=args.reference,
@@ -96,6 +120,8 @@ def options_from(args):
         initial=read_initial_poses(args.initial) if args.initial else None,
         cross_validation_folds=args.cv_folds,
         pse_noise=args.pse_noise,
+        prior=default,
+        priors=per_sensor or None,
     )
 
 

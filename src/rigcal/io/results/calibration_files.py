@@ -30,6 +30,11 @@ class CalibrationTransforms:
     transforms: Mapping[str, np.ndarray]  # child frame -> T_parent_child (4, 4)
     source: str = ""
     kinds: Mapping[str, str] = field(default_factory=dict)  # child frame -> sensor kind, if known
+    #: child frame -> the directions the calibration only bounds (a 2D radar's roll, pitch, z
+    #: about / along its own axes), if any
+    bounded: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
+    #: child frame -> what is written of them: {quantity: (low, high, estimate)} (m / deg)
+    bounded_values: Mapping[str, Mapping[str, tuple[float, float, float]]] = field(default_factory=dict)
 
 
 def _matrix(value: Any, where: str) -> np.ndarray:
@@ -42,6 +47,30 @@ def _kinds(sensors: Mapping[str, Any]) -> dict[str, str]:
         for name, entry in sensors.items()
         if isinstance(entry.get("kind"), str)
     }
+
+
+_LOCAL_DIRECTIONS = ("roll", "pitch", "z")
+
+
+def _bounded(sensors: Mapping[str, Any], source: str) -> tuple[dict, dict]:
+    """(frame -> bounded directions, frame -> bounded values) of a rigcal result file's sensors:
+    ``bounded_directions`` (else, in older files, the keys of ``bounded``)."""
+    directions, values = {}, {}
+    for name, entry in sensors.items():
+        frame = str(entry.get("frame_id", name))
+        raw = entry.get("bounded") or {}
+        dirs = entry.get("bounded_directions", list(raw) if isinstance(raw, dict) else [])
+        if not isinstance(dirs, list) or any(d not in _LOCAL_DIRECTIONS for d in dirs):
+            raise InputError(f"{source}: sensors.{name}.bounded_directions: expected a list of "
+                             f"{', '.join(_LOCAL_DIRECTIONS)}, got {dirs!r}")
+        if dirs:
+            directions[frame] = tuple(dirs)
+        if isinstance(raw, dict):
+            vals = {k: (float(v["low"]), float(v["high"]), float(v["estimate"]))
+                    for k, v in raw.items() if isinstance(v, dict) and {"low", "high", "estimate"} <= set(v)}
+            if vals:
+                values[frame] = vals
+    return directions, values
 
 
 def parse_calibration_transforms(text: str, source: str) -> CalibrationTransforms:
@@ -76,7 +105,7 @@ def parse_calibration_transforms(text: str, source: str) -> CalibrationTransform
             if "T_body_sensor" not in entry:
                 raise InputError(f"{source}: sensors.{name}: missing T_body_sensor")
             out[str(entry.get("frame_id", name))] = _matrix(entry["T_body_sensor"], f"{source}: sensors.{name}.T_body_sensor")
-        return CalibrationTransforms("absolute", parent, out, source, _kinds(sensors))
+        return CalibrationTransforms("absolute", parent, out, source, _kinds(sensors), *_bounded(sensors, source))
     ref = data.get("reference")
     if not isinstance(ref, str) or ref not in sensors:
         raise InputError(f"{source}: reference {ref!r} is not one of the sensors {list(sensors)}")
@@ -88,7 +117,7 @@ def parse_calibration_transforms(text: str, source: str) -> CalibrationTransform
         if "T_reference_sensor" not in entry:
             raise InputError(f"{source}: sensors.{name}: missing T_reference_sensor")
         out[str(entry.get("frame_id", name))] = _matrix(entry["T_reference_sensor"], f"{source}: sensors.{name}.T_reference_sensor")
-    return CalibrationTransforms("relative", parent, out, source, _kinds(sensors))
+    return CalibrationTransforms("relative", parent, out, source, _kinds(sensors), *_bounded(sensors, source))
 
 
 def read_calibration_transforms(path: str | os.PathLike[str]) -> CalibrationTransforms:

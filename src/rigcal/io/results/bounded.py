@@ -1,0 +1,102 @@
+"""What a URDF update does with the directions a calibration only bounds.
+
+A 2D radar measures range and azimuth: its height, roll and pitch (along / about its own z, x,
+y axes) are only bounded by its elevation field of view, and the estimate is some point of that
+bounded set (often a vertex of it). Written into a URDF as if measured, they would replace the
+robot's nominal mounting by a guess. ``rigcal urdf`` therefore keeps the URDF's values for those
+directions and takes only the measured ones from the calibration.
+
+**The rule** (:func:`keep_nominal`). ``N = T_body_sensor`` is the sensor link's pose in the URDF
+now (forward kinematics from the body link), ``C`` the calibrated pose in the same frame. In
+``N``'s own frame the calibrated pose is ``D = N^-1 C``; write ``D`` as translation ``(dx, dy,
+dz)`` and rotation ``Rz(yaw) Ry(pitch) Rx(roll)`` (the URDF's rpy convention). The bounded
+directions of ``D`` are set to zero - ``dz`` for z, ``roll`` and ``pitch`` for the tilt - and
+``N @ D'`` is written. With all three bounded the sensor keeps the URDF's plane (its z axis and
+its height along it exactly) and takes from the calibration its position in that plane (the
+calibrated origin projected onto it) and its heading in it (the calibrated x axis projected
+onto it). The in-plane pose is the one calibrated at the estimated tilt; when the nominal tilt
+differs much from it, calibrate again with the nominal mounting as a prior (``--initial``,
+``--prior``) to get the in-plane pose that goes with the nominal tilt.
+"""
+
+from __future__ import annotations
+
+from typing import Mapping
+
+import numpy as np
+
+from rigcal.errors import InputError
+from rigcal.geometry.se3 import from_rt, invert
+from rigcal.geometry.so3 import matrix_from_rpy, rpy_from_matrix
+
+#: the directions a bounded calibration can leave to the URDF (about / along the sensor's axes)
+KEEPABLE = ("roll", "pitch", "z")
+
+
+def keep_nominal(T_nominal: np.ndarray, T_calibrated: np.ndarray, directions) -> np.ndarray:
+    """``T_body_sensor`` with the ``directions`` (of roll, pitch, z) of ``T_nominal`` and the
+    others of ``T_calibrated`` (module docstring); a new (4, 4) array."""
+    unknown = set(directions) - set(KEEPABLE)
+    if unknown:
+        raise InputError(f"cannot keep {sorted(unknown)} from the URDF (only {', '.join(KEEPABLE)})")
+    N = np.asarray(T_nominal, dtype=float)
+    D = invert(N) @ np.asarray(T_calibrated, dtype=float)
+    roll, pitch, yaw = rpy_from_matrix(D[:3, :3])
+    t = D[:3, 3].copy()
+    if "roll" in directions:
+        roll = 0.0
+    if "pitch" in directions:
+        pitch = 0.0
+    if "z" in directions:
+        t[2] = 0.0
+    return N @ from_rt(matrix_from_rpy(np.array([roll, pitch, yaw])), t)
+
+
+def bounded_text(values: Mapping[str, tuple[float, float, float]]) -> str:
+    from rigcal.problem.uncertainty import format_bounded
+
+    return ", ".join(format_bounded(k, *v) for k, v in values.items())
+
+
+def read_urdf(path) -> object:
+    """The parsed URDF file at ``path`` (as :func:`rigcal.io.results.urdf.write_urdf` reads it)."""
+    from pathlib import Path
+
+    from rigcal.io.results.urdf import _read_urdf_file, parse_urdf
+
+    return parse_urdf(_read_urdf_file(Path(path))[1], str(path))
+
+
+def apply_bounded(
+    urdf, transforms: Mapping[str, np.ndarray], bounded: Mapping[str, tuple[str, ...]],
+    values: Mapping[str, Mapping[str, tuple[float, float, float]]], body_link: str,
+    write_bounded: bool = False,
+) -> tuple[dict[str, np.ndarray], list[str]]:
+    """(transforms to write, one line per sensor with bounded directions): each bounded frame
+    that is a link of ``urdf`` (a parsed :class:`rigcal.io.results.urdf.Urdf`) keeps that link's
+    current values in its bounded directions (:func:`keep_nominal`), unless ``write_bounded``."""
+    from rigcal.io.results.urdf import forward_kinematics
+
+    out = {k: np.asarray(v, dtype=float) for k, v in transforms.items()}
+    lines = []
+    for frame, dirs in bounded.items():
+        if frame not in out or not dirs:
+            continue
+        what = ", ".join(dirs)
+        detail = bounded_text(values.get(frame, {}))
+        detail = f" ({detail})" if detail else ""
+        link = frame if frame in urdf.links else urdf.joints[frame].child if frame in urdf.joints else None
+        if write_bounded:
+            lines.append(f"{frame}: {what} written from the estimate although the calibration only bounds "
+                         f"them{detail} (--write-bounded)")
+        elif link is None:
+            lines.append(f"{frame}: {what} written from the estimate: the calibration only bounds them{detail} "
+                         f"and {urdf.source} has no link '{frame}' to keep them from")
+        else:
+            out[frame] = keep_nominal(forward_kinematics(urdf, body_link, link), out[frame], dirs)
+            lines.append(f"{frame}: {what} kept from {urdf.source} (the calibration only bounds them{detail}); "
+                         "the rest calibrated (--write-bounded writes the estimate)")
+    return out, lines
+
+
+__all__ = ["KEEPABLE", "apply_bounded", "bounded_text", "keep_nominal", "read_urdf"]

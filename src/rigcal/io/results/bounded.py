@@ -83,19 +83,19 @@ def apply_bounded(
         if frame not in out or not dirs:
             continue
         what = ", ".join(dirs)
-        detail = bounded_text(values.get(frame, {}))
-        detail = f" ({detail})" if detail else ""
+        detail = bounded_text({k: v for k, v in values.get(frame, {}).items() if k in dirs})
+        detail = f": {detail}" if detail else ""
         link = frame if frame in urdf.links else urdf.joints[frame].child if frame in urdf.joints else None
         if write_bounded:
-            lines.append(f"{frame}: {what} written from the estimate although the calibration only bounds "
-                         f"them{detail} (--write-bounded)")
+            lines.append(f"{frame}: {what} written from the estimate (--write-bounded), although the "
+                         f"calibration only bounds them{detail}")
         elif link is None:
-            lines.append(f"{frame}: {what} written from the estimate: the calibration only bounds them{detail} "
-                         f"and {urdf.source} has no link '{frame}' to keep them from")
+            lines.append(f"{frame}: {what} written from the estimate ({urdf.source} has no link '{frame}' to "
+                         f"keep them from), although the calibration only bounds them{detail}")
         else:
             out[frame] = keep_nominal(forward_kinematics(urdf, body_link, link), out[frame], dirs)
-            lines.append(f"{frame}: {what} kept from {urdf.source} (the calibration only bounds them{detail}); "
-                         "the rest calibrated (--write-bounded writes the estimate)")
+            lines.append(f"{frame}: {what} kept from {urdf.source}, the rest calibrated (--write-bounded "
+                         f"writes the estimate); the calibration only bounds them{detail}")
     return out, lines
 
 

@@ -33,14 +33,14 @@ def table_jacobian(T: np.ndarray) -> np.ndarray:
     """(6, 6) derivative of x, y, z [m], roll, pitch, yaw [rad] of ``T`` w.r.t. its right
     perturbation (omega, v) (central differences)."""
     eps = 1e-6
-    J = np.zeros((6, 6))
-    for i in range(6):
-        d = np.zeros(6)
-        d[i] = eps
-        diff = _xyz_rpy(T @ se3_exp(d)) - _xyz_rpy(T @ se3_exp(-d))
-        diff[3:] = (diff[3:] + np.pi) % (2 * np.pi) - np.pi
-        J[:, i] = diff / (2 * eps)
-    return J
+    Ts = np.asarray(T, dtype=float) @ _FD_STEPS  # (12, 4, 4): +eps, then -eps along each direction
+    f = np.concatenate([Ts[:, :3, 3], rpy_from_matrix(Ts[:, :3, :3])], axis=1)
+    diff = f[:6] - f[6:]
+    diff[:, 3:] = (diff[:, 3:] + np.pi) % (2 * np.pi) - np.pi
+    return diff.T / (2 * eps)
+
+
+_FD_STEPS = se3_exp(np.concatenate([np.eye(6), -np.eye(6)]) * 1e-6)
 
 
 def pose_std(T: np.ndarray, covariance: np.ndarray) -> dict[str, float]:

@@ -215,6 +215,98 @@ class _PassiveSolver:
         return np.linalg.lstsq(self.A[:, P], self.b, rcond=None)[0]
 
 
+# --- the vertices of a small polytope ----------------------------------------------------------
+
+
+def _clip_polygon(poly: np.ndarray, a: np.ndarray, b: float, tol: float) -> tuple[list, list]:
+    """Sutherland-Hodgman: the part of the polygon ``poly`` (n, d) (vertices in order) with
+    ``a.x <= b``, and its points on the plane ``a.x = b``."""
+    dist = poly @ a - b
+    out: list = []
+    on: list = []
+    n = len(poly)
+    for i in range(n):
+        j = (i + 1) % n
+        p, q, dp, dq = poly[i], poly[j], dist[i], dist[j]
+        if dp <= tol:
+            out.append(p)
+            if dp >= -tol:
+                on.append(p)
+        if (dp < -tol and dq > tol) or (dp > tol and dq < -tol):
+            x = p + (q - p) * (dp / (dp - dq))
+            out.append(x)
+            on.append(x)
+    return out, on
+
+
+def _unique_rows(points, scale: float) -> np.ndarray:
+    pts = np.asarray(points, dtype=float)
+    if not len(pts):
+        return pts
+    key = np.round(pts / (1e-9 * scale))
+    _, idx = np.unique(key, axis=0, return_index=True)
+    return pts[np.sort(idx)]
+
+
+def polytope_vertices(A: np.ndarray, b: np.ndarray, limit: np.ndarray) -> np.ndarray:
+    """(n, k) the vertices of ``{d : A d <= b, |d_i| <= limit_i}`` for k <= 3 and ``b >= 0`` (the
+    origin inside): the box clipped by one half-space after the other (intervals in 1D, polygons
+    in 2D, convex polyhedra as lists of faces in 3D). Then ``max c.d`` over the set is
+    ``max(V @ c)`` - what :func:`maximise_in_polytope` finds, for any number of ``c`` at once."""
+    A = np.atleast_2d(np.asarray(A, dtype=float))
+    b = np.asarray(b, dtype=float).ravel()
+    limit = np.asarray(limit, dtype=float).ravel()
+    k = limit.size
+    if k == 0 or k > 3 or A.shape[1:] != (k,) and A.size:
+        raise ValueError(f"polytope_vertices: k = {k} (1 to 3), A {A.shape}")
+    scale = max(1.0, float(np.max(limit)))
+    tol = 1e-12 * scale
+    rows = [(a, bi) for a, bi in zip(A.reshape(-1, k), b) if np.any(a)]
+    if k == 1:
+        lo, hi = -limit[0], limit[0]
+        for (a,), bi in rows:
+            if a > 0:
+                hi = min(hi, bi / a)
+            else:
+                lo = max(lo, bi / a)
+        return np.array([[lo], [hi]])
+    if k == 2:
+        poly = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]], dtype=float) * limit
+        for a, bi in rows:
+            if np.max(poly @ a - bi) <= tol:
+                continue
+            poly = np.array(_clip_polygon(poly, a, bi, tol)[0])
+            if len(poly) == 0:
+                break
+        return _unique_rows(poly, scale)
+    L = limit
+    corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], dtype=float) * L
+    # the box's faces, each with its corners in order around it
+    faces = [corners[[0, 1, 3, 2]], corners[[4, 5, 7, 6]], corners[[0, 1, 5, 4]],
+             corners[[2, 3, 7, 6]], corners[[0, 2, 6, 4]], corners[[1, 3, 7, 5]]]
+    for a, bi in rows:
+        if max(float(np.max(f @ a)) for f in faces) - bi <= tol:
+            continue
+        new, cap = [], []
+        for f in faces:
+            kept, on = _clip_polygon(f, a, bi, tol)
+            cap += on
+            if len(kept) >= 3:
+                new.append(np.array(kept))
+        cap = _unique_rows(cap, scale)
+        if len(cap) >= 3:
+            # the cut face: its points in order around their centre, in the cutting plane
+            u = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 * np.linalg.norm(a) else [0.0, 1.0, 0.0])
+            u /= np.linalg.norm(u)
+            v = np.cross(a / np.linalg.norm(a), u)
+            rel = cap - cap.mean(axis=0)
+            new.append(cap[np.argsort(np.arctan2(rel @ v, rel @ u))])
+        faces = new
+        if not faces:
+            break
+    return _unique_rows(np.concatenate(faces) if faces else np.zeros((0, 3)), scale)
+
+
 # --- a small linear program -----------------------------------------------------------------
 
 
@@ -346,6 +438,7 @@ __all__ = [
     "maximise_in_polytope",
     "nnls",
     "null_space",
+    "polytope_vertices",
     "scale_rows",
     "single_threaded",
     "spd_solver",

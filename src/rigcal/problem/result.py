@@ -43,42 +43,21 @@ class BoundedSet:
         object.__setattr__(self, "directions", tuple(self.directions))
 
     @cached_property
-    def vertices(self) -> np.ndarray | None:
-        """(n, k) the set's vertices (qhull's halfspace intersection around its Chebyshev
-        centre), or None when it has no interior (then :meth:`extremes` solves linear programs)."""
-        k = len(self.directions)
-        if k == 0:
-            return None
-        A = np.vstack([self.A, np.eye(k), -np.eye(k)])
-        b = np.concatenate([np.maximum(self.b, 0.0), self.limit, self.limit])
-        try:
-            from scipy.optimize import linprog
-            from scipy.spatial import HalfspaceIntersection
+    def vertices(self) -> np.ndarray:
+        """(n, k) the set's vertices (:func:`rigcal.problem.numerics.polytope_vertices`)."""
+        from rigcal.problem.numerics import polytope_vertices
 
-            norm = np.linalg.norm(A, axis=1)
-            # the Chebyshev centre: the deepest point, max r with A x + r |A_i| <= b
-            lp = linprog(np.r_[np.zeros(k), -1.0], A_ub=np.c_[A, norm], b_ub=b,
-                         bounds=[(None, None)] * k + [(0.0, None)], method="highs")
-            if not lp.success or lp.x[-1] <= 1e-9 * max(1.0, float(np.max(self.limit))):
-                return None
-            return np.asarray(HalfspaceIntersection(np.c_[A, -b], lp.x[:k]).intersections, dtype=float)
-        except Exception:  # noqa: BLE001 - qhull on a degenerate set: fall back to linear programs
-            return None
+        if not self.directions:
+            return np.zeros((1, 0))
+        return polytope_vertices(self.A, np.maximum(self.b, 0.0), self.limit)
 
     def extremes(self, g: np.ndarray) -> tuple[float, float]:
-        """(min, max) of ``g @ beta`` over the set (its vertices; else linear programs); ``g`` (k,)."""
+        """(min, max) of ``g @ beta`` over the set (over its vertices); ``g`` (k,)."""
         g = np.asarray(g, dtype=float).ravel()
         if not np.any(g):
             return 0.0, 0.0
-        V = self.vertices
-        if V is not None and len(V):
-            vals = V @ g
-            return min(float(vals.min()), 0.0), max(float(vals.max()), 0.0)
-        from rigcal.problem.numerics import maximise_in_polytope
-
-        hi = float(g @ maximise_in_polytope(g, self.A, np.maximum(self.b, 0.0), self.limit))
-        lo = float(g @ maximise_in_polytope(-g, self.A, np.maximum(self.b, 0.0), self.limit))
-        return min(lo, 0.0), max(hi, 0.0)
+        vals = self.vertices @ g
+        return min(float(vals.min()), 0.0), max(float(vals.max()), 0.0)
 
 
 @dataclass(frozen=True, eq=False)  # holds arrays: compare by identity

@@ -50,6 +50,8 @@ def detect_recording(recording_path: str, rig_path: str, console):
         t.add_row(name, str(st.frames), str(st.detections), fails, f"{st.placements}/{len(run.placements)}")
     console.print(t)
     console.print(f"{len(run.placements)} board placements found")
+    for note in run.notes:
+        console.print(f"note: {note}")
     return run
 
 

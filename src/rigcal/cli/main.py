@@ -22,6 +22,7 @@ import sys
 from typing import Sequence
 
 from rigcal import __version__, interrupts
+from rigcal.cli.args import WrappedHelpFormatter
 from rigcal.cli import absolute, calibrate, demo, detect, export, mocap, report, study, urdf
 from rigcal.cli.codes import (
     EXIT_CODES_HELP,
@@ -49,10 +50,11 @@ def _parser() -> argparse.ArgumentParser:
         prog="rigcal",
         description="Joint extrinsic calibration of lidar, camera and radar rigs.",
         epilog=EPILOG,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=WrappedHelpFormatter,
     )
     p.add_argument("--version", action="version", version=f"rigcal {__version__}")
-    p.add_argument("-v", "--verbose", action="store_true", help="log progress to stderr")
+    p.add_argument("-v", "--verbose", action="store_true",
+                   help="log each stage of the command with its time to stderr")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
     for command in COMMANDS:
         command.add_parser(sub)
@@ -71,7 +73,7 @@ def run(argv: Sequence[str] | None = None) -> int:
 
     parser = _parser()
     args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(message)s")
+    logging.basicConfig(level=logging.WARNING, format="%(message)s")
     if args.command is None:
         parser.print_help()
         return 2
@@ -85,10 +87,13 @@ def run(argv: Sequence[str] | None = None) -> int:
 
         # with --json, stdout carries only the JSON; the human summary goes to stderr
         console = make_console(to_stderr=bool(getattr(args, "json", False)))
-        with warnings.catch_warnings():
+        from rigcal.stages import stage, verbose_logging
+
+        with warnings.catch_warnings(), verbose_logging(args.verbose):
             if not args.verbose:
                 warnings.simplefilter("ignore", RuntimeWarning)
-            code = args.func(args, console)
+            with stage(f"rigcal {args.command}"):
+                code = args.func(args, console)
         if interrupts.requested():  # the interrupt was swallowed, yet the command finished
             return _interrupted(interrupts.requested())
         return code
@@ -104,6 +109,17 @@ def run(argv: Sequence[str] | None = None) -> int:
         return 1
     except RecursionError:
         sys.stderr.write(f"rigcal: error: input nested too deeply for '{args.command}'\n")
+        return 1
+    except ModuleNotFoundError as exc:
+        # an optional package (rigcal.extras) imported where no early check named it
+        from rigcal.extras import missing_extra_message
+
+        if interrupts.requested():
+            return _interrupted(interrupts.requested())
+        message = missing_extra_message(exc.name or "", f"'rigcal {args.command}'")
+        if message is None:
+            raise
+        sys.stderr.write(f"rigcal: error: {message}\n")
         return 1
     except Exception:
         # The interrupt can arrive inside code that turns any exception into its own: a C

@@ -10,7 +10,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from rigcal.cli.args import count, number, subcommand
+from rigcal.cli.args import WrappedHelpFormatter, count, number, subcommand
 
 #: --scheduler (:mod:`rigcal.study.scale`; the parser must not import it)
 SCHEDULER_HELP = ("where the draws run: 'local' (default: a Dask LocalCluster, one worker process "
@@ -65,7 +65,7 @@ def add_parser(sub) -> None:
         sub, "study",
         help="reproducible studies of the papers' experiments",
         description="Reproducible studies of the papers' simulated experiments.",
-        formatter_class=argparse.HelpFormatter,
+        formatter_class=WrappedHelpFormatter,
     )
     st_sub = st.add_subparsers(dest="study", metavar="STUDY")
     add_arguments(subcommand(
@@ -118,7 +118,7 @@ def mocap_parser() -> argparse.ArgumentParser:
         description="Reproduce Charron et al.'s simulated motion-capture calibration study (Tables "
         "I-III) on simulated VLP-16 scans or camera images, next to the paper's numbers.",
         epilog=EPILOG,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=WrappedHelpFormatter,
     )
     return add_arguments(p)
 
@@ -160,6 +160,10 @@ def run_prius(args, console) -> int:
     if args.boards > dataset.num_boards:
         raise InputError(f"--boards {args.boards}: {manifest} has only {dataset.num_boards} boards")
     tables = ("II", "III", "fig7", "fig8") if args.table == "all" else (args.table,)
+    if args.out and {"fig7", "fig8"} & set(tables):  # before the draws, not after them
+        from rigcal.extras import require
+
+        require("matplotlib", "--out with Figs. 7/8 (fig7.png, fig8.png)")
     rows, seconds = [], {}
     with progress_bar(console) as bar:
         def progress(label):
@@ -214,6 +218,10 @@ def run(args, console, parser: argparse.ArgumentParser) -> int:
     from rigcal.cli.output import progress_bar
     from rigcal.study.mocap_study import run as run_study
 
+    if args.out:  # before the trials, not after them
+        from rigcal.extras import require
+
+        require("matplotlib", "--out (mocap.png)")
     with progress_bar(console) as bar:
         task = bar.add_task("mocap study", total=None, unit="trials")
         text, code = run_study(args, progress=lambda d, t: bar.update(task, completed=d, total=t))

@@ -35,6 +35,7 @@ from rigcal.problem.pairs import all_pairs, pair_data
 from rigcal.problem.priors import HOLD_RADAR_PLANE, SensorPrior, merge_priors
 from rigcal.problem.result import BoundedSet, CalibrationResult, SensorEstimate
 from rigcal.problem.numerics import scale_rows, single_threaded
+from rigcal.stages import StageClock
 from rigcal.problem.noise import (
     DetectionUnits,
     detection_units,
@@ -140,6 +141,9 @@ def _check(dataset: Dataset, options: CalibrationOptions) -> str:
         )
     if mode == "pse" and dataset.sensor(reference).kind == SensorKind.RADAR:
         raise ConfigError("PSE needs a 3D reference sensor (lidar, camera or 3D radar), not a 2D radar")
+    if mode == "pse" and not any(s.kind.is_point_cloud for s in dataset.sensors):
+        raise ConfigError("PSE needs a lidar or camera (the board poses come from their circle centres); "
+                          f"this rig has only radars ({', '.join(dataset.names)}): use FCPE or MCPE")
     if options.pse_noise not in PSE_NOISE:
         raise ConfigError(
             f"unknown PSE noise '{options.pse_noise}' (expected one of: {', '.join(PSE_NOISE)})"
@@ -703,14 +707,19 @@ def calibrate(dataset: Dataset, options: CalibrationOptions = CalibrationOptions
     mode = options.mode.lower()
     priors = sensor_priors(dataset, reference, options)
     ignored = {s.name: tuple(sorted(s.excluded)) for s in dataset.sensors if s.excluded}
+    clock = StageClock(log)
     with single_threaded():
         fit, work, outliers = _fit_screened(dataset, mode, reference, options)
+        clock.lap(f"{mode.upper()} fit with outlier screening"
+                  + (f" ({fit.noise_iterations} noise iterations)" if fit.noise_iterations else ""))
         rmse, per_board = evaluate_pairs(work, fit.poses)
         cv = (
             _cross_validation(work, mode, reference, fit.poses, options)
             if options.cross_validation_folds
             else {}
         )
+        if options.cross_validation_folds:
+            clock.lap(f"cross-validation ({options.cross_validation_folds} folds)")
     units = detection_units(work)
     if "radar_reference" in fit.solution.extra:
         sol, bounded, theta = fit.solution, {}, _theta_all_pairs(work, fit.poses, reference, units)
@@ -719,6 +728,7 @@ def calibrate(dataset: Dataset, options: CalibrationOptions = CalibrationOptions
     covariances = {s.name: sol.pose_covariance(s.name) for s in dataset.sensors}
     sets = sol.extra.get("bounded_sets", {})
     stds = {name: pose_std(fit.poses[name], cov) for name, cov in covariances.items()}
+    clock.lap("covariance")
     weak = {
         name: [w for w in weak_directions(std) if w.split(" ")[0] not in bounded.get(name, {})]
         for name, std in stds.items() if name != reference
@@ -734,6 +744,7 @@ def calibrate(dataset: Dataset, options: CalibrationOptions = CalibrationOptions
          for name, iv in bounded.items()},
         weak, noise_check(work, noise_model),
     )
+    clock.lap(f"consistency checks ({result_verdict.status})")
     if "radar_reference" in sol.extra:
         intervals = sol.extra["radar_reference"]
         iv = ", ".join(f"{d} offsets {lo:+.3g} .. {hi:+.3g} {'m' if d == 'z' else 'deg'}"

@@ -190,6 +190,9 @@ class CalibrationResult:
     #: sensor that never saw a target, or whose measurements leave its pose undetermined,
     #: while the others were calibrated)
     not_calibrated: dict[str, str] = field(default_factory=dict)
+    #: the frame the poses are relative to when the reference is not a sensor (motion capture:
+    #: mocap.yaml's ``robot_frame``); empty: the reference sensor's ``frame_id``
+    reference_frame: str = ""
 
     @property
     def flagged(self) -> bool:

@@ -1,20 +1,19 @@
 """``report.html``: one self-contained page from the report data (:mod:`rigcal.report.data`).
 
 The page is a Jinja2 template (``templates/report.html.j2``, package data) with plotly.js
-embedded once, inline - the partial build shipped with rigcal (:data:`BUNDLE`), else the full
-``plotly.min.js`` of the installed ``plotly`` package - and the figures
+embedded once, inline - the partial build shipped inside rigcal's package (:data:`BUNDLE`,
+committed with its licenses, rebuilt identically from ``tools/plotly-bundle``) - and the figures
 (:mod:`rigcal.report.figures`) as JSON that a few lines hand to ``Plotly.newPlot``. It loads
 nothing from any address (a Content-Security-Policy forbids it). The verdict and the tables
 come before the script, and plotly.js is only started after the first frame, so they show at
 once while the figures are drawn.
 
-jinja2 is imported when a page is rendered; plotly is never imported (its JavaScript is read
-from files).
+jinja2 is imported when a page is rendered; rigcal does not depend on the plotly Python package
+(the figures are plain plotly.js JSON).
 """
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import math
 from functools import lru_cache
@@ -42,24 +41,13 @@ def _version(text: str) -> str:
 
 @lru_cache(maxsize=1)
 def plotly_js() -> tuple[str, str]:
-    """(plotly.js text, its version): rigcal's partial build (:data:`BUNDLE`), else the full
-    plotly.min.js of the installed plotly package, read without importing plotly. InputError when
-    neither is there."""
+    """(plotly.js text, its version): rigcal's partial build (:data:`BUNDLE`, package data).
+    InputError when it cannot be read (a broken installation)."""
     try:
         text = BUNDLE.read_text(encoding="utf-8")
-    except OSError:
-        pass
-    else:
-        return text, _version(text)
-    spec = importlib.util.find_spec("plotly")
-    if spec is None or not spec.submodule_search_locations:
-        raise InputError("report.html needs the 'plotly' package (pip install plotly): it was not found")
-    root = Path(list(spec.submodule_search_locations)[0])
-    path = root / "package_data" / "plotly.min.js"
-    try:
-        text = path.read_text(encoding="utf-8")
     except OSError as exc:
-        raise InputError(f"{path}: cannot read plotly.js from the plotly package: {exc.strerror or exc}") from None
+        raise InputError(f"{BUNDLE}: cannot read rigcal's plotly.js ({exc.strerror or exc}); "
+                         "reinstall rigcal (the file is part of its package)") from None
     return text, _version(text)
 
 

@@ -491,6 +491,8 @@ def plot_figures(rows: Sequence[Row], folder) -> list:
     black marks where its text gives them. Returns the paths written."""
     from pathlib import Path
 
+    if not any(r.table in ("fig7", "fig8") for r in rows):
+        return []
     import matplotlib
 
     matplotlib.use("Agg")

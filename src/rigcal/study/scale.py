@@ -155,10 +155,10 @@ def task_runner(scheduler: str | None = LOCAL, workers: int | None = None,
     if scheduler == SERIAL or (scheduler == LOCAL and tasks is not None and tasks <= 1):
         yield Runner()
         return
-    try:
-        from distributed import Client
-    except ImportError as exc:  # pragma: no cover - declared dependency
-        raise InputError(f"--scheduler {scheduler}: dask.distributed is not installed ({exc})") from None
+    from rigcal.extras import require
+
+    Client = require("distributed", f"--scheduler {scheduler} (a Dask cluster; "
+                     "--scheduler serial runs in this process without it)").Client
     cluster = client = None
     # distributed logs its scheduler's and workers' comings and goings at INFO in this process
     quiet = {name: logging.getLogger(name) for name in ("distributed", "bokeh", "tornado")}

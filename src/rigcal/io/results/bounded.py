@@ -58,15 +58,6 @@ def bounded_text(values: Mapping[str, tuple[float, float, float]]) -> str:
     return ", ".join(format_bounded(k, *v) for k, v in values.items())
 
 
-def read_urdf(path) -> object:
-    """The parsed URDF file at ``path`` (as :func:`rigcal.io.results.urdf.write_urdf` reads it)."""
-    from pathlib import Path
-
-    from rigcal.io.results.urdf import _read_urdf_file, parse_urdf
-
-    return parse_urdf(_read_urdf_file(Path(path))[1], str(path))
-
-
 def apply_bounded(
     urdf, transforms: Mapping[str, np.ndarray], bounded: Mapping[str, tuple[str, ...]],
     values: Mapping[str, Mapping[str, tuple[float, float, float]]], body_link: str,
@@ -99,4 +90,4 @@ def apply_bounded(
     return out, lines
 
 
-__all__ = ["KEEPABLE", "apply_bounded", "bounded_text", "keep_nominal", "read_urdf"]
+__all__ = ["KEEPABLE", "apply_bounded", "bounded_text", "keep_nominal"]

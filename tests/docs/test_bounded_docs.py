@@ -13,7 +13,7 @@ import pytest
 import yaml
 
 from rigcal.cli.main import run
-from rigcal.io.results.calibration_files import read_calibration_transforms, read_initial_poses
+from rigcal.io.results.calibration_files import read_calibration_transforms
 from rigcal.io.results.urdf import forward_kinematics, parse_urdf
 
 REPO = Path(__file__).resolve().parents[2]
@@ -30,14 +30,6 @@ def docs_commands() -> list[list[str]]:
         for block in blocks:
             lines += [ln.strip() for ln in block.splitlines() if ln.strip().startswith("rigcal ")]
     return [shlex.split(ln)[1:] for ln in dict.fromkeys(lines)]
-
-
-def test_example_nominal_calibration_is_the_example_urdf():
-    urdf = parse_urdf((REPO / "examples" / "demo" / "robot.urdf").read_text(), "robot.urdf")
-    nominal = read_initial_poses(REPO / "examples" / "demo" / "nominal.yaml")
-    assert set(nominal) == {"lidar1", "camera1", "radar1"}
-    for name, T in nominal.items():
-        np.testing.assert_allclose(T, forward_kinematics(urdf, "lidar1", name), atol=1e-12)
 
 
 @pytest.mark.slow

@@ -16,7 +16,7 @@ EPILOG = """examples:
   rigcal calibrate results/detections/rig.yaml --mode pse --out results_pse/   # no detection again
   rigcal calibrate --batch fleet/car01 fleet/car02 fleet/car03 --out results/   # results/car01/ ...
   rigcal calibrate --batch fleet/* --out results/ --scheduler tcp://10.0.0.5:8786
-  rigcal calibrate rig.yaml --initial nominal.yaml --prior radar1:z_m=0.02,roll_deg=1,pitch_deg=1 --out results/
+  rigcal calibrate rig.yaml --initial robot.urdf --prior radar1:z_m=0.02,roll_deg=1,pitch_deg=1 --out results/
 
 writes calibration.yaml, <sensor>.yaml, calibration.launch and report.html (open it in a
 browser: verdict, poses, residuals, 3D detections, coverage; works offline)

@@ -69,6 +69,12 @@ def test_urdf_keeps_the_bounded_directions_of_the_urdf(files, capsys):
     assert np.linalg.norm(T_w[:2, 3] - T_true[:2, 3]) < 0.03 < np.linalg.norm(N[:2, 3] - T_true[:2, 3])
     # the camera is measured in every direction: written as calibrated
     np.testing.assert_allclose(forward_kinematics(written, "lidar1", "camera1"), cal.transforms["camera1"], atol=1e-9)
+    # every writer given the URDF publishes the same (rule 5 of the frame contract)
+    assert run(["export", str(tmp / "cal" / "calibration.yaml"), "--urdf", str(tmp / "robot.urdf"),
+                "--format", "yaml", "--out", str(tmp / "tf.yaml")]) == 0
+    assert "radar1: roll, pitch, z kept from" in capsys.readouterr().out.replace("\n", " ")
+    tf = yaml.safe_load((tmp / "tf.yaml").read_text())["transforms"]
+    np.testing.assert_allclose(tf["radar1"]["T_parent_child"], forward_kinematics(written, "lidar1", "radar1"), atol=1e-9)
     # --write-bounded writes the estimate, and says so
     assert run(["urdf", str(tmp / "robot.urdf"), str(tmp / "cal" / "calibration.yaml"), "--write-bounded",
                 "--out", str(tmp / "estimate.urdf")]) == 0
@@ -154,3 +160,25 @@ def test_relative_table_takes_the_honest_covariance(files, capsys):
     assert "relative transforms (T_to_from)" in err and "near gimbal lock" in err
     table = err.split("relative transforms (T_to_from)")[1].split("errors between sensors")[0]
     assert "bnd" in table
+
+
+def test_calibrate_with_the_urdf_writes_the_kept_directions(files, capsys):
+    """`calibrate --initial robot.urdf` without a prior: the radar's z, roll, pitch stay bounded;
+    calibration.launch and the frames block publish the URDF's values for them, and an export
+    without the URDF later publishes the same."""
+    tmp, manifest, truth, nominal = files
+    assert run(["calibrate", str(manifest), "--cv-folds", "0", "--initial", str(tmp / "robot.urdf"),
+                "--out", str(tmp / "cal")]) == 0
+    assert "radar1: roll, pitch, z kept from" in capsys.readouterr().out.replace("\n", " ")
+    data = yaml.safe_load((tmp / "cal" / "calibration.yaml").read_text())
+    assert data["sensors"]["radar1"]["bounded_directions"] == ["roll", "pitch", "z"]
+    kept = np.array(data["frames"]["sensors"]["radar1"]["kept_from_urdf"]["T_reference_measured"])
+    N = invert(nominal["lidar1"]) @ nominal["radar1"]
+    np.testing.assert_allclose(kept[:3, 2], N[:3, 2], atol=1e-9)  # the URDF's plane
+    assert run(["export", str(tmp / "cal" / "calibration.yaml"), "--format", "yaml", "--out", str(tmp / "tf.yaml")]) == 0
+    tf = yaml.safe_load((tmp / "tf.yaml").read_text())["transforms"]
+    np.testing.assert_allclose(tf["radar1"]["T_parent_child"], kept, atol=1e-9)
+    assert run(["export", str(tmp / "cal" / "calibration.yaml"), "--format", "yaml", "--write-bounded",
+                "--out", str(tmp / "est.yaml")]) == 0
+    est = yaml.safe_load((tmp / "est.yaml").read_text())["transforms"]
+    np.testing.assert_allclose(est["radar1"]["T_parent_child"], data["sensors"]["radar1"]["T_reference_sensor"], atol=1e-9)

@@ -251,6 +251,12 @@ def run(args, console) -> int:
 
         for w in plan_with_checks(calibration_transforms(result))[1]:
             console.print(f"[yellow]warning:[/yellow] {w}")
+    else:  # the written files keep the URDF's values for directions only bounded: say so
+        from rigcal.io.results.bounded import bounded_lines
+        from rigcal.io.results.calibration import calibration_transforms, frame_plan
+
+        for line in bounded_lines(calibration_transforms(result), frame_plan(result, urdf), args.initial):
+            console.print(line, markup=False, highlight=False, soft_wrap=True)
     console.print(f"results written to {args.out}/" + (" (FLAGGED, written with --force)" if result.flagged else ""))
     if detection is not None:
         rerun_hint(args, kept, dataset, console)

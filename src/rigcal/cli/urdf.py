@@ -45,32 +45,22 @@ def add_parser(sub) -> None:
 
 
 def run(args, console) -> int:
-    from dataclasses import replace
-
     from rigcal.errors import InputError
-    from rigcal.io.results.bounded import apply_bounded
+    from rigcal.io.results.bounded import bounded_lines
     from rigcal.io.results.calibration_files import read_calibration_transforms
-    from rigcal.io.results.frames import plan_frames, plan_with_checks
+    from rigcal.io.results.frames import plan_with_checks
     from rigcal.io.results.urdf import read_urdf, write_urdf
 
     cal = read_calibration_transforms(args.calibration)
     urdf = read_urdf(args.urdf_in)
-    bounded_lines: list[str] = []
-    if cal.bounded:
-        # directions the calibration only bounds keep the URDF's values (--write-bounded: not);
-        # the poses are relative to the reference's measured frame (a camera's optical frame)
-        reference = plan_frames(cal, urdf, args.body_link).reference.measured
-        transforms, bounded_lines = apply_bounded(
-            urdf, cal.transforms, cal.bounded, cal.bounded_values, reference, write_bounded=args.write_bounded,
-        )
-        cal = replace(cal, transforms=transforms)
     joint_for = {}
     for item in args.joint:
         if "=" not in item:
             raise InputError(f"--joint {item!r}: expected LINK=JOINT")
         link, joint = item.split("=", 1)
         joint_for[link] = joint
-    plan, warnings = plan_with_checks(cal, urdf, args.body_link)
+    # directions the calibration only bounds keep the URDF's values (--write-bounded: not)
+    plan, warnings = plan_with_checks(cal, urdf, args.body_link, write_bounded=args.write_bounded)
     published = {s.frame_id: s.link for s in plan.sensors}
     joint_for = {published.get(link, link): joint for link, joint in joint_for.items()}
     written = write_urdf(
@@ -93,7 +83,7 @@ def run(args, console) -> int:
         console.print(f"added link '{frame}' on a fixed joint from '{body}'")
     for note in written.notes:
         console.print(f"note: {note}")
-    for line in bounded_lines:
+    for line in bounded_lines(cal, plan, args.urdf_in, args.write_bounded):
         if line.split(":")[0] not in written.skipped:
             console.print(line, markup=False, highlight=False, soft_wrap=True)
     for frame in written.skipped:

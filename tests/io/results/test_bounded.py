@@ -9,8 +9,8 @@ import pytest
 from rigcal.errors import InputError
 from rigcal.geometry import from_rt, invert, matrix_from_rpy
 from rigcal.geometry.se3 import se3_exp
-from rigcal.io.results.bounded import apply_bounded, keep_nominal
-from rigcal.io.results.urdf import add_fixed_links, forward_kinematics, parse_urdf
+from rigcal.io.results.bounded import keep_nominal
+from rigcal.io.results.urdf import add_fixed_links, parse_urdf
 
 
 def pose(xyz, rpy_deg):
@@ -57,27 +57,44 @@ def test_keep_nominal_refuses_unknown_directions():
         keep_nominal(N, N, ("yaw",))
 
 
-def test_apply_bounded_keeps_writes_or_says_why():
+def test_frame_plan_keeps_writes_or_says_why():
+    from rigcal.io.results.bounded import bounded_lines
+    from rigcal.io.results.calibration_files import CalibrationTransforms
+    from rigcal.io.results.frames import frames_block, plan_frames
+
     text = '<robot name="r"><link name="base_link"/></robot>'
     text = add_fixed_links(text, "r.urdf", {"lidar": np.eye(4), "radar": N}, "base_link")
     urdf = parse_urdf(text, "r.urdf")
-    C = N @ pose((0.1, 0.0, 0.4), (5.0, 5.0, 2.0))
+    C = N @ pose((0.1, 0.0, 0.4), (5.0, 5.0, 2.0))  # the estimate, relative to the lidar
     values = {"radar": {"z": (0.1, 0.9, 0.5), "roll": (-10.0, 10.0, 5.0), "x": (3.6, 3.9, 3.8)}}
-    out, lines = apply_bounded(urdf, {"radar": C, "camera": np.eye(4)}, {"radar": ("roll", "pitch", "z")},
-                               values, "base_link")
-    np.testing.assert_allclose(out["radar"], keep_nominal(forward_kinematics(urdf, "base_link", "radar"), C,
-                                                          ("roll", "pitch", "z")), atol=1e-12)
-    np.testing.assert_array_equal(out["camera"], np.eye(4))
-    assert lines == [
-        "radar: roll, pitch, z kept from r.urdf, the rest calibrated (--write-bounded writes the estimate); the "
-        "calibration only bounds them: z +0.100 .. +0.900 m (estimate +0.500), roll -10.00 .. +10.00 deg "
+    cal = CalibrationTransforms("relative", "lidar", {"radar": C, "cam": np.eye(4)}, "c.yaml",
+                                bounded={"radar": ("roll", "pitch", "z")}, bounded_values=values)
+    plan = plan_frames(cal, urdf)
+    np.testing.assert_allclose(plan.T_root("radar"), keep_nominal(N, C, ("roll", "pitch", "z")), atol=1e-12)
+    np.testing.assert_array_equal(plan.T_root("cam"), np.eye(4))
+    assert dict(plan.kept) == {"radar": ("roll", "pitch", "z")}
+    assert bounded_lines(cal, plan, "r.urdf") == [
+        "radar: roll, pitch, z kept from r.urdf, the rest calibrated (--write-bounded writes the estimate); "
+        "the calibration only bounds them: z +0.100 .. +0.900 m (estimate +0.500), roll -10.00 .. +10.00 deg "
         "(estimate +5.00)"
     ]
-    out, lines = apply_bounded(urdf, {"radar": C}, {"radar": ("roll", "pitch", "z")}, values, "base_link",
-                               write_bounded=True)
-    np.testing.assert_array_equal(out["radar"], C)
-    assert lines[0].startswith("radar: roll, pitch, z written from the estimate (--write-bounded)")
-    out, lines = apply_bounded(urdf, {"radar2": C}, {"radar2": ("z",)}, {}, "base_link")
-    np.testing.assert_array_equal(out["radar2"], C)
-    assert lines == ["radar2: z written from the estimate (r.urdf has no link 'radar2' to keep them from), "
-                     "although the calibration only bounds them"]
+    # recorded in calibration.yaml's frames block: a later plan without the URDF publishes the same
+    block = frames_block(plan)
+    assert block["sensors"]["radar"]["kept_from_urdf"]["directions"] == ["roll", "pitch", "z"]
+    again = CalibrationTransforms("relative", "lidar", cal.transforms, "c.yaml", bounded=cal.bounded,
+                                  kept={"radar": np.array(block["sensors"]["radar"]["kept_from_urdf"]["T_reference_measured"])})
+    np.testing.assert_allclose(plan_frames(again).T_root("radar"), plan.T_root("radar"), atol=1e-12)
+    # --write-bounded: the estimate, said so
+    est = plan_frames(cal, urdf, write_bounded=True)
+    np.testing.assert_allclose(est.T_root("radar"), C, atol=1e-12)
+    assert bounded_lines(cal, est, "r.urdf", True)[0].startswith("radar: roll, pitch, z written from the estimate (--write-bounded)")
+    # a URDF without the sensor's link: nothing to keep from
+    bare = parse_urdf(add_fixed_links('<robot name="r"><link name="base_link"/></robot>', "b.urdf",
+                                      {"lidar": np.eye(4)}, "base_link"), "b.urdf")
+    plain = plan_frames(cal, bare)
+    np.testing.assert_allclose(plain.T_root("radar"), C, atol=1e-12)
+    assert bounded_lines(cal, plain, "b.urdf") == [
+        "radar: roll, pitch, z written from the estimate (b.urdf has no link 'radar' to keep them from), "
+        "although the calibration only bounds them: z +0.100 .. +0.900 m (estimate +0.500), roll -10.00 .. "
+        "+10.00 deg (estimate +5.00)"
+    ]

@@ -6,6 +6,10 @@ bounded set (often a vertex of it). Written into a URDF as if measured, they wou
 robot's nominal mounting by a guess. ``rigcal urdf`` therefore keeps the URDF's values for those
 directions and takes only the measured ones from the calibration.
 
+Every writer does so alike, through the frame plan (rule 5 of :mod:`rigcal.io.results.frames`):
+``rigcal urdf``, ``rigcal export --urdf``, and the files ``rigcal calibrate --initial robot.urdf``
+writes; :func:`bounded_lines` says what was done, one line per sensor.
+
 **The rule** (:func:`keep_nominal`). ``N = T_body_sensor`` is the sensor link's pose in the URDF
 now (forward kinematics from the body link), ``C`` the calibrated pose in the same frame. In
 ``N``'s own frame the calibrated pose is ``D = N^-1 C``; write ``D`` as translation ``(dx, dy,
@@ -58,36 +62,30 @@ def bounded_text(values: Mapping[str, tuple[float, float, float]]) -> str:
     return ", ".join(format_bounded(k, *v) for k, v in values.items())
 
 
-def apply_bounded(
-    urdf, transforms: Mapping[str, np.ndarray], bounded: Mapping[str, tuple[str, ...]],
-    values: Mapping[str, Mapping[str, tuple[float, float, float]]], body_link: str,
-    write_bounded: bool = False,
-) -> tuple[dict[str, np.ndarray], list[str]]:
-    """(transforms to write, one line per sensor with bounded directions): each bounded frame
-    that is a link of ``urdf`` (a parsed :class:`rigcal.io.results.urdf.Urdf`) keeps that link's
-    current values in its bounded directions (:func:`keep_nominal`), unless ``write_bounded``."""
-    from rigcal.io.results.urdf import forward_kinematics
-
-    out = {k: np.asarray(v, dtype=float) for k, v in transforms.items()}
+def bounded_lines(cal, plan, urdf_source: str | None, write_bounded: bool = False) -> list[str]:
+    """One line per sensor of ``cal`` (a :class:`~rigcal.io.results.calibration_files.CalibrationTransforms`)
+    with bounded directions: kept from the URDF ``urdf_source`` in the frame ``plan``
+    (:func:`rigcal.io.results.frames.plan_frames`), or written from the estimate and why."""
     lines = []
-    for frame, dirs in bounded.items():
-        if frame not in out or not dirs:
+    for frame, dirs in (getattr(cal, "bounded", None) or {}).items():
+        if frame not in cal.transforms or not dirs:
             continue
         what = ", ".join(dirs)
-        detail = bounded_text({k: v for k, v in values.get(frame, {}).items() if k in dirs})
+        values = (getattr(cal, "bounded_values", None) or {}).get(frame, {})
+        detail = bounded_text({k: v for k, v in values.items() if k in dirs})
         detail = f": {detail}" if detail else ""
-        link = frame if frame in urdf.links else urdf.joints[frame].child if frame in urdf.joints else None
-        if write_bounded:
+        if frame in plan.kept:
+            source = urdf_source or plan.urdf or "the URDF"
+            lines.append(f"{frame}: {what} kept from {source}, the rest calibrated (--write-bounded writes "
+                         f"the estimate); the calibration only bounds them{detail}")
+        elif write_bounded:
             lines.append(f"{frame}: {what} written from the estimate (--write-bounded), although the "
                          f"calibration only bounds them{detail}")
-        elif link is None:
-            lines.append(f"{frame}: {what} written from the estimate ({urdf.source} has no link '{frame}' to "
-                         f"keep them from), although the calibration only bounds them{detail}")
         else:
-            out[frame] = keep_nominal(forward_kinematics(urdf, body_link, link), out[frame], dirs)
-            lines.append(f"{frame}: {what} kept from {urdf.source}, the rest calibrated (--write-bounded "
-                         f"writes the estimate); the calibration only bounds them{detail}")
-    return out, lines
+            where = f"{urdf_source} has no link '{frame}'" if urdf_source else "no URDF"
+            lines.append(f"{frame}: {what} written from the estimate ({where} to keep them from), "
+                         f"although the calibration only bounds them{detail}")
+    return lines
 
 
-__all__ = ["KEEPABLE", "apply_bounded", "bounded_text", "keep_nominal"]
+__all__ = ["KEEPABLE", "bounded_lines", "bounded_text", "keep_nominal"]

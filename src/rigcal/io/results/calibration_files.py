@@ -50,6 +50,9 @@ class CalibrationTransforms:
     bounded: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
     #: child frame -> what is written of them: {quantity: (low, high, estimate)} (m / deg)
     bounded_values: Mapping[str, Mapping[str, tuple[float, float, float]]] = field(default_factory=dict)
+    #: child frame -> the pose published with the URDF's values for its bounded directions
+    #: (``kept_from_urdf`` in the ``frames`` block), ``T_reference_measured``
+    kept: Mapping[str, np.ndarray] = field(default_factory=dict)
 
 
 def _matrix(value: Any, where: str) -> np.ndarray:
@@ -92,6 +95,21 @@ def _bounded(sensors: Mapping[str, Any], source: str) -> tuple[dict, dict]:
     return directions, values
 
 
+def _kept(block: Any, source: str) -> dict[str, np.ndarray]:
+    """frame_id -> ``T_reference_measured`` of the ``frames`` block's ``kept_from_urdf`` entries."""
+    out = {}
+    sensors = block.get("sensors") if isinstance(block, dict) else None
+    for key, e in (sensors or {}).items() if isinstance(sensors, dict) else ():
+        kept = e.get("kept_from_urdf") if isinstance(e, dict) else None
+        if kept is None:
+            continue
+        where = f"{source}: frames.sensors.{key}.kept_from_urdf"
+        if not isinstance(kept, dict) or "T_reference_measured" not in kept:
+            raise InputError(f"{where}: expected a mapping with directions and T_reference_measured")
+        out[str(e.get("frame_id", key))] = _matrix(kept["T_reference_measured"], f"{where}.T_reference_measured")
+    return out
+
+
 def parse_calibration_transforms(text: str, source: str) -> CalibrationTransforms:
     data = load_yaml(text, source)
     if not isinstance(data, dict):
@@ -119,7 +137,7 @@ def parse_calibration_transforms(text: str, source: str) -> CalibrationTransform
     ref_frame, recorded, urdf = recorded_frames(data.get("frames"), source)
     bounded, bounded_values = _bounded(sensors, source)
     extra = {"names": _names(sensors), "recorded": recorded, "urdf": urdf, "bounded": bounded,
-             "bounded_values": bounded_values}
+             "bounded_values": bounded_values, "kept": _kept(data.get("frames"), source)}
     if "body_frame" in data:
         bf = data["body_frame"]
         parent = bf.get("name", "base_link") if isinstance(bf, dict) else bf

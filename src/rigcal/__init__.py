@@ -28,7 +28,8 @@ _EXPORTS = {
     "calibrate": "rigcal.api",
     "write_results": "rigcal.api",
     "write_urdf": "rigcal.api",
-    # "check": the later-calibration check (rigcal check) will be exported here, from its module
+    "check": "rigcal.api",
+    "diff": "rigcal.api",
     # values
     "Dataset": "rigcal.dataset",
     "SensorDetections": "rigcal.dataset",
@@ -37,6 +38,9 @@ _EXPORTS = {
     "CalibrationOptions": "rigcal.problem.calibrate",
     "CalibrationResult": "rigcal.problem.result",
     "SensorEstimate": "rigcal.problem.result",
+    "CheckOptions": "rigcal.problem.check",
+    "CheckResult": "rigcal.problem.check",
+    "DiffResult": "rigcal.problem.diff",
     # errors
     "RigcalError": "rigcal.errors",
     "InputError": "rigcal.errors",
@@ -45,7 +49,9 @@ _EXPORTS = {
 __all__ = ["__version__", *sorted(_EXPORTS)]
 
 if TYPE_CHECKING:  # for type checkers and IDEs; at run time __getattr__ imports them
-    from rigcal.api import calibrate, detect_board, load_dataset, write_results, write_urdf
+    from rigcal.api import calibrate, check, detect_board, diff, load_dataset, write_results, write_urdf
+    from rigcal.problem.check import CheckOptions, CheckResult
+    from rigcal.problem.diff import DiffResult
     from rigcal.dataset import BoardGeometry, Dataset, SensorDetections, SensorKind
     from rigcal.errors import InputError, RigcalError
     from rigcal.problem.calibrate import CalibrationOptions

@@ -12,7 +12,10 @@ test runs its examples).
   verdict of the consistency check;
 * :func:`write_results` - ``calibration.yaml``, ``<sensor>.yaml``, ``calibration.launch`` and
   (with the dataset) ``report.html``, as ``rigcal calibrate --out`` writes them;
-* :func:`write_urdf` - a calibration written into a URDF's sensor joints.
+* :func:`write_urdf` - a calibration written into a URDF's sensor joints;
+* :func:`check` - new board detections judged under a stored calibration: per sensor
+  ``unchanged``, ``moved`` (by how much, p-value) or ``cannot tell``, as ``rigcal check``;
+* :func:`diff` - two calibrations of one rig compared per sensor, as ``rigcal diff``.
 
 Errors are :class:`rigcal.errors.RigcalError` subclasses whose message names the file, field
 or sensor; a result that contradicts its own noise model is returned, not raised: check
@@ -29,6 +32,8 @@ from rigcal.errors import InputError
 
 if TYPE_CHECKING:
     from rigcal.dataset import Dataset
+    from rigcal.problem.check import CheckOptions, CheckResult
+    from rigcal.problem.diff import DiffResult
     from rigcal.detect.pipeline import DetectionRun
     from rigcal.io.results.urdf import WrittenUrdf
     from rigcal.problem.calibrate import CalibrationOptions
@@ -136,4 +141,58 @@ def write_urdf(calibration: CalibrationResult | PathLike, urdf_in: PathLike, urd
                        missing="add" if add_missing else "skip")
 
 
-__all__ = ["calibrate", "detect_board", "load_dataset", "write_results", "write_urdf"]
+def _stored(calibration: Any, what: str) -> Any:
+    """A calibration as :func:`check` and :func:`diff` take it: a result in memory as it is, a
+    path (``calibration.yaml`` or its folder) read."""
+    from rigcal.problem.result import CalibrationResult
+    from rigcal.problem.stored import StoredCalibration
+
+    if isinstance(calibration, (CalibrationResult, StoredCalibration)):
+        return calibration
+    if isinstance(calibration, (str, os.PathLike)):
+        from rigcal.io.results.stored import read_stored_calibration
+
+        return read_stored_calibration(calibration)
+    raise InputError(f"{what}: expected a CalibrationResult or the path of a calibration.yaml, "
+                     f"got {type(calibration).__name__}")
+
+
+def check(calibration: CalibrationResult | PathLike, dataset: Dataset | PathLike, *,
+          options: CheckOptions | None = None, **overrides: Any) -> CheckResult:
+    """Is the rig still calibrated? ``dataset`` (new board detections, or the path of their
+    ``rig.yaml``) judged under ``calibration`` (a result, or a ``calibration.yaml``): each
+    sensor re-estimated with the others held and compared with its stored pose under both
+    covariances. The result's ``status`` is ``"moved"``, ``"cannot tell"`` or ``"unchanged"``;
+    ``result.sensors[name]`` says which and by how much (``.status``, ``.headline`` such as
+    ``moved: 12 +- 4 mm, 0.40 +- 0.10 deg (p < 0.001)``, ``.change`` with ``distance_m`` and
+    ``rotation_deg``, ``.test.p_value``); ``result.detectable`` is the smallest change these
+    boards could detect.
+    ``options``: a :class:`~rigcal.problem.check.CheckOptions`; ``overrides``: its fields by
+    name (``alpha=0.01``, ``min_boards=4``, ...)."""
+    import dataclasses
+
+    from rigcal.problem.check import CheckOptions
+    from rigcal.problem.check import check as _check
+
+    base = options if options is not None else CheckOptions()
+    fields = {f.name for f in dataclasses.fields(CheckOptions)}
+    unknown = sorted(set(overrides) - fields)
+    if unknown:
+        raise InputError(f"unknown check option(s) {unknown}; the options are {sorted(fields)}")
+    if not hasattr(dataset, "sensors"):
+        dataset = load_dataset(dataset)  # type: ignore[arg-type]
+    return _check(_stored(calibration, "check"), dataset,  # type: ignore[arg-type]
+                  dataclasses.replace(base, **overrides))
+
+
+def diff(old: CalibrationResult | PathLike, new: CalibrationResult | PathLike, *,
+         alpha: float = 0.05) -> DiffResult:
+    """Two calibrations of one rig compared, as ``rigcal diff``: per sensor the change of its
+    pose (translation, rotation angle and axis) and whether it is significant at level
+    ``alpha`` given both covariances (``status`` as :func:`check`'s)."""
+    from rigcal.problem.diff import diff as _diff
+
+    return _diff(_stored(old, "diff: old"), _stored(new, "diff: new"), alpha=alpha)
+
+
+__all__ = ["calibrate", "check", "detect_board", "diff", "load_dataset", "write_results", "write_urdf"]

@@ -25,7 +25,7 @@ from rigcal.sim.rig import make_rig_placements, prius_like_rig, simulate
 HEAVY = ("numpy", "scipy", "cv2", "matplotlib", "rosbags", "rich", "yaml", "rigcal.problem", "rigcal.study",
          "rigcal.detect", "rigcal.mocap", "rigcal.io", "jinja2", "plotly", "rigcal.report")
 
-COMMANDS = ("calibrate", "detect", "absolute", "mocap", "report", "study", "urdf", "export", "demo")
+COMMANDS = ("calibrate", "check", "diff", "detect", "absolute", "mocap", "report", "study", "urdf", "export", "demo")
 
 
 def _imported_modules(*argv: str) -> set[str]:
@@ -64,6 +64,8 @@ def test_study_options_match_the_study():
 
 MINIMAL = {
     "calibrate": ["rig.yaml", "--out", "o"],
+    "check": ["calibration.yaml", "rig.yaml"],
+    "diff": ["old.yaml", "new.yaml"],
     "detect": ["rec.bag", "--rig", "rig.yaml", "--out", "o"],
     "absolute": ["rig.yaml", "--external", "e", "--scan", "s.pcd", "--labels", "l.yaml", "--out", "o"],
     "mocap": ["mocap.yaml", "--out", "o"],
@@ -103,8 +105,8 @@ def test_top_help_lists_the_exit_codes(capsys):
     text = capsys.readouterr().out
     assert "exit codes:" in text
     codes = {line.split()[0] for line in text.split("exit codes:")[1].splitlines() if re.match(r"  \d+ ", line)}
-    assert codes == {"0", "1", "2", "3", "4", "130", "143"}
-    assert "flagged" in text and "partial" in text
+    assert codes == {"0", "1", "2", "3", "4", "6", "7", "130", "143"}
+    assert "flagged" in text and "partial" in text and "moved (rigcal check / diff)" in text
 
 
 def test_demo_help_says_the_bag_is_deleted_unless_keep_bag(capsys):

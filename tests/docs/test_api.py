@@ -42,3 +42,9 @@ def test_the_api_page_runs_as_written(tmp_path, monkeypatch, capsys):
     np.testing.assert_allclose(namespace["T_radar_camera"],
                                np.linalg.inv(result.sensors["radar1"].T_reference_sensor)
                                @ result.sensors["camera1"].T_reference_sensor)
+    # the check section: the demo's clean boards, calibrated on 8 and checked on the other 4
+    report, changes = namespace["report"], namespace["changes"]
+    assert report.num_boards == 4 and set(report.sensors) == {"lidar1", "camera1", "radar1"}
+    assert report.status != "moved" and not report.moved, [s.headline for s in report.sensors.values()]
+    assert all(s.headline in out for s in report.sensors.values())
+    assert set(changes.sensors) == {"camera1", "radar1"} and not changes.moved

@@ -357,3 +357,116 @@ def test_mutation_strategy_is_seeded():
     seen.clear()
     collect()
     assert seen == first
+
+
+# -------------------------------------------------------------------------------- issue #22: the new commands
+def _report_json_seed() -> bytes:
+    from rigcal.problem.calibrate import CalibrationOptions, calibrate
+    from rigcal.io.results.report import report_json_text
+    from rigcal.report.data import calibration_report
+    from rigcal.sim.rig import make_rig_placements, prius_like_rig, simulate
+
+    rng = np.random.default_rng(3)
+    sensors = prius_like_rig()
+    sim = simulate(sensors, make_rig_placements(rng, sensors, 6, min_fraction=1.0), rng=rng)
+    result = calibrate(sim.dataset, CalibrationOptions(mode="fcpe", cross_validation_folds=0))
+    return report_json_text(calibration_report(result, sim.dataset)).encode()
+
+
+def test_fuzz_report_and_study_json(limited):
+    """``rigcal report``'s inputs: a (mutated) report.json or study.json is rendered or refused
+    with a RigcalError - a 5000-digit integer, deep nesting, NaN, wrong types included."""
+    from rigcal.io._text import load_json
+    from rigcal.report.page import check_report_data, render_report
+    from rigcal.report.study_page import render_study
+
+    study = (b'{"meta": {"study": "x", "seed": 0}, "rows": [{"table": "III", "config": "FCPE", "pair": "a-b", '
+             b'"median_mm": 1.5, "mad_mm": 0.2, "paper_mm": 1.0, "draws": 3}, {"table": "fig7", "k": 3, '
+             b'"config": "PSE", "pair": "a-b", "median_mm": 2.0}]}')
+    seeds = [_report_json_seed(), study, b'{"rows": [' * 40 + b"]" * 40, b'{"n": ' + b"9" * 5000 + b"}"]
+
+    def target(text):
+        data = load_json(text, "report.json")
+        if isinstance(data, dict) and "rows" in data:
+            render_study(data, "study.json")
+        else:
+            render_report(check_report_data(data, "report.json"), "report.json")
+
+    run_fuzz(limited, seeds, target, text=True, examples=80)
+
+
+def test_fuzz_scheduler_addresses():
+    """``--scheduler``: any text is an address (scheme, host, port in range) or an InputError;
+    nothing is contacted here."""
+    from rigcal.errors import InputError
+    from rigcal.study.scale import parse_scheduler_address
+
+    parts = st.tuples(st.sampled_from(["", "tcp://", "tls://", "ucx://", "inproc://", "ws://", "TCP://", "://"]),
+                      st.sampled_from(["", "127.0.0.1", "node7", "[::1]", "a\nb", "a\x00b", "h/x", ":"]),
+                      st.sampled_from(["", ":", ":8786", ":0", ":65536", ":-1", ":80a", ":99999999999999", "::1"]))
+    addresses = st.one_of(st.text(max_size=30), parts.map("".join))
+
+    @settings(FUZZ, max_examples=250)
+    @given(addresses)
+    def fuzz(address):
+        try:
+            scheme, host, port = parse_scheduler_address(address)
+        except InputError as exc:
+            assert "\n" not in str(exc) or "\n" in address  # (the CLI escapes it on output)
+            return
+        assert scheme in ("tcp", "tls", "ucx") and host and 1 <= port <= 65535
+
+    fuzz()
+
+
+def test_fuzz_fleet_arguments(tmp_path):
+    """``--batch`` arguments: whatever they are (missing, files, NUL, control characters, the
+    same folder twice), every argument becomes an entry or a note and nothing raises."""
+    from rigcal.fleet import fleet_entries
+
+    (tmp_path / "car1").mkdir()
+    (tmp_path / "car1" / "rig.yaml").write_text("sensors: []\n")
+    (tmp_path / "notes.txt").write_text("x")
+    names = st.sampled_from(["car1", "car1/", "car1/rig.yaml", "notes.txt", "nope", "car\n1", "a\x00b", ".", "..",
+                             "x" * 300, "car1/../car1"])
+
+    @settings(FUZZ, max_examples=80)
+    @given(st.lists(st.one_of(names, st.text(max_size=12)), min_size=1, max_size=6))
+    def fuzz(args):
+        entries, notes = fleet_entries([str(tmp_path / a) for a in args])
+        assert len(entries) + len(notes) <= len(args)
+        named = [e.name for e in entries if e.problem is None]
+        assert len(named) == len(set(named))  # two entries never write to the same OUT/<name>/
+        for e in entries:
+            assert e.problem is None or str(e.path) in e.problem or e.problem.startswith("'")
+        assert all("\n" not in n for n in notes)
+
+    fuzz()
+
+
+def test_fuzz_study_options():
+    """``rigcal study``'s numeric options: any value parses within its documented range or is a
+    usage error naming the option."""
+    import argparse
+    import contextlib
+    import io
+
+    from rigcal.cli.study import MAX_MEASUREMENTS, MAX_SEED, MAX_TRIALS, mocap_parser
+
+    values = st.one_of(st.integers(-2**70, 2**70).map(str), st.sampled_from(["1e9", "nan", "-0", "", "0x10", "٣"]))
+
+    @settings(FUZZ, max_examples=300)
+    @given(st.sampled_from(["--seed", "--trials", "--measurements"]), values)
+    def fuzz(option, value):
+        err = io.StringIO()
+        try:
+            with contextlib.redirect_stderr(err):
+                args = mocap_parser().parse_args([option, value])
+        except SystemExit as exc:
+            assert exc.code == 2 and f"argument {option}" in err.getvalue()
+            return
+        assert isinstance(args, argparse.Namespace)
+        assert 0 <= args.seed <= MAX_SEED and 1 <= args.trials <= MAX_TRIALS
+        assert all(1 <= n <= MAX_MEASUREMENTS for n in args.measurements)
+
+    fuzz()

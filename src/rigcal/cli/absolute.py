@@ -52,6 +52,10 @@ def add_parser(sub) -> None:
 def run(args, console) -> int:
     import math
 
+    from rigcal.io.atomic import check_output_folder
+
+    check_output_folder(args.out, inputs=tuple(p for p in (args.manifest, args.scan, args.labels, args.initial) if p))
+
     from rigcal.absolute.evaluate import ground_normal_angle
     from rigcal.absolute.labels import parse_labels_csv, parse_labels_yaml
     from rigcal.absolute.pipeline import absolute_calibration

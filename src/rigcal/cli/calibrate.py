@@ -22,8 +22,9 @@ writes calibration.yaml, <sensor>.yaml, calibration.launch and report.html (open
 browser: verdict, poses, residuals, 3D detections, coverage; works offline)
 
 exit codes: 0 consistent result written; 1 error; 2 usage; 3 the result contradicts its own
-noise model (nothing written unless --force); with --batch: 4 some datasets failed (the others
-are written), 3 some were flagged, 1 all failed
+noise model (nothing written unless --force); with --batch: 4 some datasets failed or were
+lost with the scheduler (the others are written; one line names them), 3 some were flagged,
+1 all failed
 """
 
 #: --scheduler's help (:mod:`rigcal.study.scale`; not imported by the parser)
@@ -59,8 +60,9 @@ def add_parser(sub) -> None:
     c.add_argument(
         "--batch", nargs="+", metavar="DIR",
         help="calibrate many datasets (e.g. a fleet of vehicles), each DIR holding a rig.yaml "
-        "manifest; results go to OUT/<DIR's name>/, one failing dataset does not stop the others, "
-        "a summary table ends the run",
+        "manifest; results go to OUT/<DIR's name>/ (the name as given), each written as it is "
+        "calibrated; plain files are skipped with a note, one failing dataset does not stop the "
+        "others, a summary table ends the run (docs/fleet.md)",
     )
     c.add_argument("--scheduler", default="local", metavar="local|serial|ADDRESS", help=SCHEDULER_HELP)
     c.add_argument("--out", required=True, metavar="DIR", help="output folder")
@@ -188,6 +190,10 @@ def run(args, console) -> int:
     from rigcal.stages import StageClock, log
 
     files = args.lidar or args.camera or args.radar or args.radar3d
+    inputs = (args.manifest, args.rig, args.initial, args.ignore, *args.lidar, *args.camera, *args.radar, *args.radar3d)
+    from rigcal.io.atomic import check_output_folder
+
+    check_output_folder(args.out, inputs=tuple(p for p in inputs if p))  # before any work
     if args.manifest and files:
         raise InputError("give either a manifest or --lidar/--camera/--radar files, not both")
     detection = None

@@ -56,8 +56,10 @@ def detect_recording(recording_path: str, rig_path: str, console):
 
 
 def run(args, console) -> int:
-    from rigcal.io.atomic import staged_folder
+    from rigcal.io.atomic import check_output_folder, staged_folder
     from rigcal.io.dataset.manifest import write_dataset
+
+    check_output_folder(args.out, inputs=(args.recording, args.rig))  # before any work
 
     found = detect_recording(args.recording, args.rig, console)
     with staged_folder(args.out) as stage:

@@ -46,10 +46,12 @@ class PlainProgress:
     :meth:`add_task` and :meth:`update`.
     """
 
-    def __init__(self, console, every_s: float = 5.0, clock: Callable[[], float] = time.monotonic):
+    def __init__(self, console, every_s: float = 5.0, clock: Callable[[], float] = time.monotonic,
+                 eta: bool = False):
         self.console = console
         self.every_s = every_s
         self.clock = clock
+        self.eta = eta  # each line also says the time elapsed and the time left
         self._tasks: list[dict] = []
 
     def __enter__(self) -> PlainProgress:
@@ -97,6 +99,9 @@ class PlainProgress:
         now = self.clock()
         if final:
             text += f", {now - task['start']:.1f} s"
+        elif self.eta and total and done:
+            elapsed = now - task["start"]
+            text += f", {elapsed:.0f} s elapsed, about {elapsed * (total - done) / done:.0f} s left"
         self.console.print(text, markup=False, highlight=False, soft_wrap=True)
         task["last"] = now
         task["final"] = final
@@ -105,12 +110,12 @@ class PlainProgress:
 def progress_bar(console, eta: bool = False):
     """The progress every long command shows: a live bar on a terminal, plain lines elsewhere."""
     if not console.is_terminal:
-        return PlainProgress(console)
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn
+        return PlainProgress(console, eta=eta)
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn, TimeRemainingColumn
 
     columns = ["[progress.description]{task.description}", BarColumn(), MofNCompleteColumn()]
     if eta:
-        columns.append(TimeRemainingColumn())
+        columns += [TimeElapsedColumn(), TimeRemainingColumn()]
     return Progress(*columns, console=console)
 
 

@@ -700,8 +700,15 @@ def calibrate(dataset: Dataset, options: CalibrationOptions = CalibrationOptions
     """Calibrate every sensor of ``dataset`` into the reference sensor's frame.
 
     Raises ConfigError for bad options, InputError when sensors cannot be related, and
-    ConvergenceError when the solver does not converge (never a silent result).
+    ConvergenceError when the solver does not converge (never a silent result). BLAS runs on
+    one thread throughout (covariance and checks included), so the result is the same to the
+    last bit in any process - a Dask worker of ``calibrate --batch`` or the command line.
     """
+    with single_threaded():
+        return _calibrate(dataset, options)
+
+
+def _calibrate(dataset: Dataset, options: CalibrationOptions) -> CalibrationResult:
     t0 = time.perf_counter()
     reference = _check(dataset, options)
     mode = options.mode.lower()

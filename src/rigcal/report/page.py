@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from functools import lru_cache
 from pathlib import Path
 from typing import Any, Mapping
@@ -216,9 +217,37 @@ def _context(data: Mapping[str, Any]) -> dict[str, Any]:
     }
 
 
+#: the tags plotly.js may draw from the figures' texts: the ones rigcal writes itself (line
+#: breaks, hover boxes' <extra>), none with attributes
+PLOTLY_TAGS = frozenset({"br", "br/", "br /", "extra", "/extra", "b", "/b", "i", "/i", "sub", "/sub", "sup", "/sup"})
+_TAG = re.compile(r"<([^<>]*)>")
+
+
+def _inert_tag(match: re.Match) -> str:
+    inner = match.group(1)
+    return match.group(0) if inner.strip().lower() in PLOTLY_TAGS else f"&lt;{inner}&gt;"
+
+
+def plotly_text(value: Any) -> Any:
+    """``value`` (a figure spec) with every string's markup that plotly.js would act on made
+    inert: plotly.js draws the tags in a text (``<span style=...>``, ``<a href=...>``) - a
+    hand-edited report.json's sensor name could make the page fetch ``url(...)`` or link
+    elsewhere; such a tag becomes text (``&lt;span ...&gt;``, which plotly shows as written).
+    Only :data:`PLOTLY_TAGS` stay tags. Pure: returns a new value."""
+    if isinstance(value, str):
+        return _TAG.sub(_inert_tag, value) if "<" in value else value
+    if isinstance(value, dict):
+        return {k: plotly_text(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [plotly_text(v) for v in value]
+    return value
+
+
 def figures_script_json(figures: list) -> str:
-    """Figure specs as JSON safe inside a ``<script>`` element (no ``<`` at all)."""
-    return json.dumps(figures, separators=(",", ":"), allow_nan=False).replace("<", "\\u003c")
+    """Figure specs as JSON safe inside a ``<script>`` element (no ``<`` at all), their texts'
+    markup inert (:func:`plotly_text`)."""
+    safe = [{**f, "data": plotly_text(f.get("data", [])), "layout": plotly_text(f.get("layout", {}))} for f in figures]
+    return json.dumps(safe, separators=(",", ":"), allow_nan=False).replace("<", "\\u003c")
 
 
 @lru_cache(maxsize=2)

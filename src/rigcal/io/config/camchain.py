@@ -344,6 +344,10 @@ def _load_json(text: str, source: str) -> Any:
         raise InputError(
             f"{source}: line {exc.lineno}, column {exc.colno}: invalid JSON: {exc.msg}"
         ) from None
+    except ValueError as exc:  # an integer of more than 4300 digits
+        raise InputError(f"{source}: not a usable JSON document ({exc})") from None
+    except RecursionError:
+        raise InputError(f"{source}: JSON nested too deeply") from None
 
 
 def parse_intrinsics_json_text(text: str, source: str) -> CameraModel:

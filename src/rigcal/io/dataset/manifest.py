@@ -118,13 +118,25 @@ def _refuse_detection_rig(data: Mapping[Any, Any], source: str) -> None:
         )
 
 
+#: longest sensor name (characters; at most twice as many bytes in UTF-8): it names the sensor's
+#: files (``<sensor>.yaml``), which a file system holds up to 255 bytes
+MAX_SENSOR_NAME = 100
+
+
 def check_sensor_name(name: Any, where: str) -> str:
-    """``name`` if it can name a sensor (and its files): a non-empty string without whitespace
-    or path separators, not ``.`` or ``..``; else InputError."""
+    """``name`` if it can name a sensor (and its files): a non-empty string of at most
+    :data:`MAX_SENSOR_NAME` characters (and twice as many bytes in UTF-8) without whitespace,
+    control characters (NUL included) or path separators, not ``.`` or ``..``; else
+    InputError naming ``where``."""
     name = nonempty_string(name, where)
-    if _BAD_NAME.search(name) or name in (".", ".."):
+    if _BAD_NAME.search(name) or name in (".", "..") or not name.isprintable():
         raise InputError(
-            f"{where}: sensor name {name!r} must not contain whitespace or path separators"
+            f"{where}: sensor name {name!r} must not contain whitespace or path separators (nor control characters)"
+        )
+    if len(name) > MAX_SENSOR_NAME or len(name.encode("utf-8")) > 2 * MAX_SENSOR_NAME:
+        raise InputError(
+            f"{where}: sensor name {name[:20]!r}... is {len(name)} characters long; expected at most "
+            f"{MAX_SENSOR_NAME} (it names the sensor's files)"
         )
     return name
 
@@ -144,6 +156,8 @@ def _parse_sensor(i: int, raw: Any, source: str) -> _SensorEntry:
     name = check_sensor_name(raw["name"], f"{where}.name")
     kind = SensorKind.parse(nonempty_string(raw["kind"], f"{where}.kind"), f"{where}.kind")
     detections = nonempty_string(raw["detections"], f"{where}.detections")
+    if "\x00" in detections:
+        raise InputError(f"{where}.detections: {detections!r} contains a NUL byte; expected a file path")
     suffix = Path(detections).suffix.lower()
     if suffix not in _CSV_SUFFIXES + _YAML_SUFFIXES:
         raise InputError(
@@ -233,6 +247,8 @@ def _parse_spec(text: str, source: str) -> _Manifest:
     ignore = data.get("ignore")
     if ignore is not None:
         ignore = nonempty_string(ignore, f"{source}: ignore")
+        if "\x00" in ignore:
+            raise InputError(f"{source}: ignore: {ignore!r} contains a NUL byte; expected a file path")
     return _Manifest(sensors, reference, parse_board(data.get("board"), source), ignore)
 
 

@@ -60,7 +60,7 @@ def read_report_data(folder: str | os.PathLike[str]) -> dict[str, Any]:
     """The report data of a result folder of ``rigcal calibrate``, ``mocap`` or ``absolute``:
     its ``report.json``; without one, the result file alone (no detections). InputError naming
     the folder and what was expected when it holds neither."""
-    from rigcal.io._text import load_yaml, read_text
+    from rigcal.io._text import load_json, load_yaml, read_text
     from rigcal.report.data import result_only_report
     from rigcal.report.page import check_report_data
 
@@ -70,11 +70,7 @@ def read_report_data(folder: str | os.PathLike[str]) -> dict[str, Any]:
                          "mocap or absolute")
     path = root / REPORT_JSON_NAME
     if path.exists():
-        text = read_text(path, "report data")
-        try:
-            data = json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise InputError(f"{path}: not valid JSON (line {exc.lineno}: {exc.msg})") from None
+        data = load_json(read_text(path, "report data"), str(path))
         return dict(check_report_data(data, str(path)))
     absolute, calibration = root / "absolute.yaml", root / "calibration.yaml"
     if absolute.exists():

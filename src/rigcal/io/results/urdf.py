@@ -485,6 +485,7 @@ def parse_urdf(text: str, source: str = "<urdf>") -> Urdf:
             child_element=Span(ends["child"].start, ends["child"].end),
         )
         parent_joint[child_link] = name
+    _refuse_cycles(joints, parent_joint, source)
     return Urdf(
         source=source,
         text=text,
@@ -493,6 +494,27 @@ def parse_urdf(text: str, source: str = "<urdf>") -> Urdf:
         joints=MappingProxyType(joints),
         parent_joint=MappingProxyType(parent_joint),
     )
+
+
+def _refuse_cycles(joints: Mapping[str, Joint], parent_joint: Mapping[str, str], source: str) -> None:
+    """InputError naming the joints of a cycle, anywhere in the file (a URDF is a tree: a cycle
+    away from the sensors' chains would be copied into the output as it is)."""
+    done: set[str] = set()
+    for start in parent_joint:
+        path: list[str] = []
+        on_path: set[str] = set()
+        link = start
+        while link in parent_joint and link not in done:
+            if link in on_path:
+                cycle = sorted((joints[parent_joint[c]] for c in path[path.index(link):]), key=lambda j: j.line)
+                names = ", ".join(f"'{j.name}'" for j in cycle)
+                links = ", ".join(sorted(j.child for j in cycle))
+                raise InputError(f"{source}: line {cycle[0].line}: joints {names} form a cycle (links {links}); "
+                                 "a URDF is a tree")
+            on_path.add(link)
+            path.append(link)
+            link = joints[parent_joint[link]].parent
+        done.update(path)
 
 
 # --------------------------------------------------------------------------------------------

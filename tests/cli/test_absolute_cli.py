@@ -58,7 +58,7 @@ def test_absolute_writes_body_frame_calibration_close_to_truth(inputs, capsys):
     data = yaml.safe_load((out / "absolute.yaml").read_text())
     assert data["verdict"]["status"] == "consistent" and text.lstrip().startswith("consistent")
     radar2d = [n for n, s in data["sensors"].items() if s["kind"] == "radar"]
-    assert radar2d and all(data["sensors"][n]["bounded_directions"] == ["roll", "pitch", "z"] for n in radar2d)
+    assert radar2d and all(list(data["sensors"][n]["bounded_offsets"]) == ["roll", "pitch", "z"] for n in radar2d)
     for n in radar2d:  # absolute values in the body frame, the estimate inside
         s = data["sensors"][n]
         assert {"roll", "pitch", "z"} <= set(s["bounded"])

@@ -90,7 +90,7 @@ def test_prior_from_the_command_line_determines_the_radar_plane(files, capsys):
     captured = capsys.readouterr()
     data = json.loads(captured.out)
     radar = data["sensors"]["radar1"]
-    assert radar["bounded"] == {} and radar["bounded_directions"] == []
+    assert radar["bounded"] == {} and radar["bounded_offsets"] == {}
     assert radar["prior"] == {"roll_deg": 1.0, "pitch_deg": 1.0, "z_m": 0.02}
     assert 0.5 < radar["std"]["pitch_deg"] <= 1.02 and 0.01 < radar["std"]["z_m"] <= 0.021
     assert {c["name"]: c["detail"] for c in data["verdict"]["checks"]}["rank"] == "every direction determined"
@@ -171,7 +171,7 @@ def test_calibrate_with_the_urdf_writes_the_kept_directions(files, capsys):
                 "--out", str(tmp / "cal")]) == 0
     assert "radar1: roll, pitch, z kept from" in capsys.readouterr().out.replace("\n", " ")
     data = yaml.safe_load((tmp / "cal" / "calibration.yaml").read_text())
-    assert data["sensors"]["radar1"]["bounded_directions"] == ["roll", "pitch", "z"]
+    assert list(data["sensors"]["radar1"]["bounded_offsets"]) == ["roll", "pitch", "z"]
     kept = np.array(data["frames"]["sensors"]["radar1"]["kept_from_urdf"]["T_reference_measured"])
     N = invert(nominal["lidar1"]) @ nominal["radar1"]
     np.testing.assert_allclose(kept[:3, 2], N[:3, 2], atol=1e-9)  # the URDF's plane

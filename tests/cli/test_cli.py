@@ -272,7 +272,7 @@ def test_consistent_result_carries_its_verdict_and_bounds(tmp_path, manifest, ca
     data = json.loads(captured.out)
     assert data["verdict"]["status"] == "consistent"
     radar = data["sensors"]["radar1"]
-    assert radar["bounded_directions"] == ["roll", "pitch", "z"]
+    assert list(radar["bounded_offsets"]) == ["roll", "pitch", "z"]
     # absolute values of the pose table, with the estimate inside
     assert {"roll", "pitch", "z"} <= set(radar["bounded"])
     for key, v in radar["bounded"].items():

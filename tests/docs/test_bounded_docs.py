@@ -42,7 +42,7 @@ def test_docs_commands_run_as_written(tmp_path, monkeypatch, capsys):
         out += capsys.readouterr().out
     text = out.replace("\n", " ")
     free = yaml.safe_load(Path("cal_free/calibration.yaml").read_text())["sensors"]["radar1"]
-    assert free["bounded_directions"] == ["roll", "pitch", "z"]
+    assert list(free["bounded_offsets"]) == ["roll", "pitch", "z"]
     # the numbers the docs quote
     for quoted in ("z -1.784 .. -0.701 m (estimate -1.547)", "roll -10.07 .. +12.44 deg (estimate -0.37)",
                    "pitch -8.29 .. +15.03 deg (estimate +0.45)"):

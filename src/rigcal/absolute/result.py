@@ -237,7 +237,7 @@ class AbsoluteResult:
                 "covariance": _matrix(est.covariance),
                 "held": list(est.held),
                 "bounded": bounded_dict(est.bounded_values),
-                "bounded_directions": list(est.bounded),
+                "bounded_offsets": {d: [float(lo), float(hi)] for d, (lo, hi) in est.bounded.items()},
             }
             for name, est in self.sensors.items()
         }

@@ -228,7 +228,7 @@ class CalibrationResult:
                     "covariance": [[f(v) for v in row] for row in est.covariance],
                     "held": list(est.held),
                     "bounded": bounded_dict(est.bounded_values),
-                    "bounded_directions": list(est.bounded),
+                    "bounded_offsets": {d: [f(lo), f(hi)] for d, (lo, hi) in est.bounded.items()},
                     "prior": {k: f(v) for k, v in est.prior.items()},
                 }
                 for name, est in self.sensors.items()

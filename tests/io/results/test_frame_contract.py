@@ -259,8 +259,8 @@ def _expected(tmp: Path, keep: bool = True) -> dict[str, np.ndarray]:
     if keep:
         nominal = edges_to_poses(urdf_edges((tmp / "robot.urdf").read_text()), "lidar_link")
         for n, e in cal["sensors"].items():
-            if e.get("bounded_directions"):
-                T_ref[n] = _keep_nominal(nominal[FRAMES[n]], T_ref[n], e["bounded_directions"])
+            if e.get("bounded_offsets"):
+                T_ref[n] = _keep_nominal(nominal[FRAMES[n]], T_ref[n], list(e["bounded_offsets"]))
     out = {}
     for frame, (sensor, role) in PUBLISHED.items():
         T = T_ref[sensor]

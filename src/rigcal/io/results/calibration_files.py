@@ -76,15 +76,16 @@ _LOCAL_DIRECTIONS = ("roll", "pitch", "z")
 
 def _bounded(sensors: Mapping[str, Any], source: str) -> tuple[dict, dict]:
     """(frame -> bounded directions, frame -> bounded values) of a rigcal result file's sensors:
-    ``bounded_directions`` (else, in older files, the keys of ``bounded``)."""
+    the keys of ``bounded_offsets`` (else, in older files, of ``bounded``)."""
     directions, values = {}, {}
     for name, entry in sensors.items():
         frame = str(entry.get("frame_id", name))
         raw = entry.get("bounded") or {}
-        dirs = entry.get("bounded_directions", list(raw) if isinstance(raw, dict) else [])
+        offsets = entry.get("bounded_offsets", raw)
+        dirs = list(offsets) if isinstance(offsets, dict) else offsets
         if not isinstance(dirs, list) or any(d not in _LOCAL_DIRECTIONS for d in dirs):
-            raise InputError(f"{source}: sensors.{name}.bounded_directions: expected a list of "
-                             f"{', '.join(_LOCAL_DIRECTIONS)}, got {dirs!r}")
+            raise InputError(f"{source}: sensors.{name}.bounded_offsets: expected a mapping of "
+                             f"{', '.join(_LOCAL_DIRECTIONS)} -> [low, high], got {offsets!r}")
         if dirs:
             directions[frame] = tuple(dirs)
         if isinstance(raw, dict):

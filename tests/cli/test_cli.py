@@ -267,7 +267,14 @@ def test_consistent_result_carries_its_verdict_and_bounds(tmp_path, manifest, ca
     assert code == 0
     data = json.loads(captured.out)
     assert data["verdict"]["status"] == "consistent"
-    assert set(data["sensors"]["radar1"]["bounded"]) == {"roll", "pitch", "z"}
+    radar = data["sensors"]["radar1"]
+    assert list(radar["bounded_offsets"]) == ["roll", "pitch", "z"]
+    # absolute values of the pose table, with the estimate inside
+    assert {"roll", "pitch", "z"} <= set(radar["bounded"])
+    for key, v in radar["bounded"].items():
+        k = ("x", "y", "z", "roll", "pitch", "yaw").index(key)
+        assert v["low"] <= v["estimate"] <= v["high"]
+        assert v["estimate"] == pytest.approx((radar["xyz_m"] + radar["rpy_deg"])[k])
     assert data["sensors"]["camera1"]["bounded"] == {}
     assert set(data["noise_model"]["camera1"]) == {"lateral", "depth"}
     assert captured.err.lstrip().startswith("consistent")

@@ -16,6 +16,7 @@ EPILOG = """examples:
   rigcal calibrate results/detections/rig.yaml --mode pse --out results_pse/   # no detection again
   rigcal calibrate --batch fleet/car01 fleet/car02 fleet/car03 --out results/   # results/car01/ ...
   rigcal calibrate --batch fleet/* --out results/ --scheduler tcp://10.0.0.5:8786
+  rigcal calibrate rig.yaml --initial robot.urdf --prior radar1:z_m=0.02,roll_deg=1,pitch_deg=1 --out results/
 
 writes calibration.yaml, <sensor>.yaml, calibration.launch and report.html (open it in a
 browser: verdict, poses, residuals, 3D detections, coverage; works offline)
@@ -71,12 +72,21 @@ def add_parser(sub) -> None:
     c.add_argument(
         "--hold-radar-plane",
         action="store_true",
-        help="hold each 2D radar's z, roll and pitch at the initial guess",
+        help="hold each 2D radar's z, roll and pitch at the initial guess (the limit of a prior "
+        "z_m=0,roll_deg=0,pitch_deg=0)",
+    )
+    c.add_argument(
+        "--prior", action="append", default=[], metavar="[SENSOR:]KEY=TOL,...",
+        help="soft prior around the --initial pose: 1-sigma tolerances along / about the sensor's "
+        "own axes, keys x_m y_m z_m roll_deg pitch_deg yaw_deg (0 holds a direction); without "
+        "SENSOR: for every sensor without its own prior (the manifest's 'prior'); repeatable. "
+        "docs/uncertainty.md",
     )
     c.add_argument("--initial", metavar="FILE",
-                   help="initial guesses (nominal poses): a previous calibration.yaml, or the robot's "
-                   "URDF (each sensor at the link its frame_id names; cameras: the optical frame; the "
-                   "written files then name frames by that URDF, as `rigcal urdf` does)")
+                   help="initial guesses (nominal poses, which mounting priors are around): a previous "
+                   "calibration.yaml, or the robot's URDF (each sensor at the link its frame_id names; "
+                   "cameras: the optical frame; the written files then name frames by that URDF, as "
+                   "`rigcal urdf` does)")
     c.add_argument("--cv-folds", type=count(0, 1000), default=5, metavar="N", help="leave-boards-out folds (0 = off)")
     plot = c.add_mutually_exclusive_group()
     plot.add_argument("--plot", action="store_true",
@@ -129,8 +139,21 @@ def initial_urdf(args):
 def options_from(args, dataset=None):
     """The :class:`CalibrationOptions` the command-line options ask for (``dataset``: the rig,
     needed to read nominal poses from a URDF)."""
+    from rigcal.errors import InputError
     from rigcal.problem.calibrate import CalibrationOptions
+    from rigcal.problem.priors import parse_prior_text
 
+    default, per_sensor = None, {}
+    for text in getattr(args, "prior", None) or []:
+        sensor, prior = parse_prior_text(text)
+        if sensor is None:
+            if default is not None:
+                raise InputError(f"--prior {text!r}: a second default prior (give one, or SENSOR:...)")
+            default = prior
+        elif sensor in per_sensor:
+            raise InputError(f"--prior {text!r}: a second prior for '{sensor}'")
+        else:
+            per_sensor[sensor] = prior
     return CalibrationOptions(
         mode=args.mode,
         reference=args.reference,
@@ -139,6 +162,8 @@ def options_from(args, dataset=None):
         initial=initial_poses_from(args.initial, dataset, args.reference) if args.initial else None,
         cross_validation_folds=args.cv_folds,
         pse_noise=args.pse_noise,
+        prior=default,
+        priors=per_sensor or None,
     )
 
 
@@ -232,6 +257,12 @@ def run(args, console) -> int:
 
         for w in plan_with_checks(calibration_transforms(result))[1]:
             console.print(f"[yellow]warning:[/yellow] {w}")
+    else:  # the written files keep the URDF's values for directions only bounded: say so
+        from rigcal.io.results.bounded import bounded_lines
+        from rigcal.io.results.calibration import calibration_transforms, frame_plan
+
+        for line in bounded_lines(calibration_transforms(result), frame_plan(result, urdf), args.initial):
+            console.print(line, markup=False, highlight=False, soft_wrap=True)
     console.print(f"results written to {args.out}/" + (" (FLAGGED, written with --force)" if result.flagged else ""))
     if detection is not None:
         rerun_hint(args, kept, dataset, console)

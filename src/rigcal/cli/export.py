@@ -41,6 +41,9 @@ def add_parser(sub) -> None:
     e.add_argument("--urdf", metavar="ROBOT.urdf",
                    help="the robot's URDF: frame_ids are resolved in its links as `rigcal urdf` does "
                    "(camera optical frames, REP 103)")
+    e.add_argument("--write-bounded", action="store_true",
+                   help="with --urdf (or a calibration that recorded one): write the estimate also for "
+                   "directions the calibration only bounds (by default the URDF's values, as `rigcal urdf`)")
     e.add_argument("--body-link", metavar="FRAME",
                    help="the frame the calibration is relative to (default: the reference sensor's "
                    "frame_id; a mocap calibration: mocap.yaml's robot_frame)")
@@ -100,7 +103,7 @@ def run(args, console) -> int:
             from rigcal.io.results.urdf import read_urdf
 
             urdf = read_urdf(args.urdf)
-        plan, warnings = plan_with_checks(cal, urdf, args.body_link)
+        plan, warnings = plan_with_checks(cal, urdf, args.body_link, write_bounded=args.write_bounded)
         if urdf is not None and plan.root not in urdf.links:
             warnings.insert(0, f"the frame '{plan.root}' the calibration is relative to is not a "
                             f"link of {args.urdf}: the published transforms hang from a frame the "
@@ -115,6 +118,10 @@ def run(args, console) -> int:
         }[args.format]()
         for note in plan.notes:
             say(f"note: {note}")
+        from rigcal.io.results.bounded import bounded_lines
+
+        for line in bounded_lines(cal, plan, args.urdf, args.write_bounded):
+            say(line)
         for w in warnings:
             say(f"warning: {w}")
         what = f"{len(t)} transform(s) from '{plan.root}'"

@@ -16,9 +16,12 @@ def add_parser(sub) -> None:
         "CALIBRATION: a rigcal calibration.yaml (of calibrate or mocap) / absolute.yaml, or the "
         "original tool's YAML {source, target, transform}. Sensors are found by frame_id; one the URDF lacks is "
         "skipped with a warning (or added: --add-missing); a camera's optical frame is handled as "
-        "REP 103 (docs/guide.md).",
+        "REP 103 (docs/guide.md). Directions the calibration only bounds (a 2D radar's z, roll and "
+        "pitch without a prior) keep the URDF's values, one line per sensor says so; "
+        "--write-bounded writes the estimate instead (docs/urdf.md).",
         epilog="examples:\n  rigcal urdf robot.urdf results/calibration.yaml --out robot_calibrated.urdf\n"
-        "  rigcal urdf vehicle.urdf calibration.yaml --in-place",
+        "  rigcal urdf vehicle.urdf calibration.yaml --in-place\n"
+        "  rigcal urdf robot.urdf results/calibration.yaml --write-bounded --out robot_calibrated.urdf",
     )
     u.add_argument("urdf_in", metavar="INPUT.urdf")
     u.add_argument("calibration", metavar="CALIBRATION")
@@ -31,6 +34,9 @@ def add_parser(sub) -> None:
     u.add_argument("--add-missing", action="store_true",
                    help="add a link on a fixed joint from the body link for every calibrated frame the "
                    "URDF lacks (default: skip it with a warning)")
+    u.add_argument("--write-bounded", action="store_true",
+                   help="write the estimate also for directions the calibration only bounds (a 2D "
+                   "radar's z, roll, pitch without a prior); by default the URDF's values are kept")
     u.add_argument(
         "--joint", action="append", default=[], metavar="LINK=JOINT",
         help="update JOINT for the sensor LINK (default: the joint whose child is LINK)",
@@ -40,19 +46,21 @@ def add_parser(sub) -> None:
 
 def run(args, console) -> int:
     from rigcal.errors import InputError
+    from rigcal.io.results.bounded import bounded_lines
     from rigcal.io.results.calibration_files import read_calibration_transforms
     from rigcal.io.results.frames import plan_with_checks
     from rigcal.io.results.urdf import read_urdf, write_urdf
 
     cal = read_calibration_transforms(args.calibration)
+    urdf = read_urdf(args.urdf_in)
     joint_for = {}
     for item in args.joint:
         if "=" not in item:
             raise InputError(f"--joint {item!r}: expected LINK=JOINT")
         link, joint = item.split("=", 1)
         joint_for[link] = joint
-    urdf = read_urdf(args.urdf_in)
-    plan, warnings = plan_with_checks(cal, urdf, args.body_link)
+    # directions the calibration only bounds keep the URDF's values (--write-bounded: not)
+    plan, warnings = plan_with_checks(cal, urdf, args.body_link, write_bounded=args.write_bounded)
     published = {s.frame_id: s.link for s in plan.sensors}
     joint_for = {published.get(link, link): joint for link, joint in joint_for.items()}
     written = write_urdf(
@@ -75,6 +83,9 @@ def run(args, console) -> int:
         console.print(f"added link '{frame}' on a fixed joint from '{body}'")
     for note in written.notes:
         console.print(f"note: {note}")
+    for line in bounded_lines(cal, plan, args.urdf_in, args.write_bounded):
+        if line.split(":")[0] not in written.skipped:
+            console.print(line, markup=False, highlight=False, soft_wrap=True)
     for frame in written.skipped:
         console.print(
             f"[yellow]warning:[/yellow] no link '{frame}' in {args.urdf_in}: skipped (set the "

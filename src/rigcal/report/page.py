@@ -78,6 +78,17 @@ def pose_rows(sensors: Mapping[str, Any], rpy_std_decimals: int = 2) -> list[dic
     return rows
 
 
+def _bounded_text(key: str, value: Any) -> str:
+    """One bounded quantity of a result file (``{low, high, estimate}``; an older file's
+    ``[low, high]`` offsets are printed as such)."""
+    from rigcal.problem.uncertainty import format_bounded
+
+    if isinstance(value, Mapping):
+        return format_bounded(key, float(value["low"]), float(value["high"]), float(value["estimate"]))
+    lo, hi = value
+    return f"{key} offsets {lo:+.3g} .. {hi:+.3g} {'m' if key in ('x', 'y', 'z') else 'deg'}"
+
+
 def _verdict(result: Mapping[str, Any]) -> dict[str, Any]:
     v = result.get("verdict") or {}
     status = v.get("status", "unchecked")
@@ -94,8 +105,7 @@ def _verdict(result: Mapping[str, Any]) -> dict[str, Any]:
 def _context(data: Mapping[str, Any]) -> dict[str, Any]:
     result = data["result"]
     sensors = result.get("sensors", {})
-    bounded = [f"{name}: " + ", ".join(f"{d} {lo:+.3g}..{hi:+.3g} {'m' if d == 'z' else 'deg'}"
-                                        for d, (lo, hi) in s["bounded"].items())
+    bounded = [f"{name}: " + ", ".join(_bounded_text(d, v) for d, v in s["bounded"].items())
                for name, s in sensors.items() if s.get("bounded")]
     weak = []
     for name, s in sensors.items():
@@ -128,10 +138,16 @@ def _context(data: Mapping[str, Any]) -> dict[str, Any]:
     relative = result.get("relative", {})
     if relative:
         rel = {f"{r['to']} <- {r['from']}": r for r in relative.values()}
+        locked = [f"{k} (pitch {_fmt(r['rpy_deg'][1], '+.1f')} deg): rotation std about {r['from']}'s x, y, z "
+                  + "/".join(_fmt(v, ".2f") for v in r.get("rotation_std_deg", [])) + " deg"
+                  for k, r in rel.items() if r.get("gimbal_lock")]
         blocks.append({
             "id": "relative", "frame": "", "title": "Relative transforms between sensors (T_to_from)",
             "caption": "Sensor 'from' in the frame of sensor 'to', with the std propagated from both "
-                       "poses' joint covariance.",
+                       "poses' joint covariance (the same as the poses', correlations included); bnd: a "
+                       "bounded direction moves the value more than its std."
+                       + (" Near gimbal lock (Euler roll and yaw ill-defined): " + "; ".join(locked) + "."
+                          if locked else ""),
             "rows": pose_rows(rel),
         })
     errors = []

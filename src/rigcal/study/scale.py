@@ -562,10 +562,13 @@ def quiet_dask_logs() -> None:
     """Silence distributed's logs in this process below CRITICAL, for good: it logs its
     scheduler's and workers' comings and goings, and a lost scheduler as ERRORs with tracebacks
     - also from its event loop's thread after the client was closed -, where the runner says
-    in one line what happened."""
+    in one line what happened. The same for asyncio's own logger: a scheduler torn down by
+    Ctrl-C / SIGTERM while a scatter was in flight leaves a task whose KeyError asyncio
+    reports as "Task exception was never retrieved" with a traceback (seen in CI); the event
+    loop here is Dask's alone."""
     import distributed  # noqa: F401 - it sets its loggers' levels when imported
 
-    prefixes = ("distributed", "bokeh", "tornado")
+    prefixes = ("distributed", "bokeh", "tornado", "asyncio")
     for name in list(logging.root.manager.loggerDict):  # its own levels: distributed.client, ...
         if name.split(".")[0] in prefixes:
             logging.getLogger(name).setLevel(logging.CRITICAL)

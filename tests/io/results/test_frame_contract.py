@@ -235,11 +235,32 @@ def calibrated(tmp_path_factory):
     return tmp, sim
 
 
-def _expected(tmp: Path) -> dict[str, np.ndarray]:
+def _keep_nominal(N: np.ndarray, C: np.ndarray, directions) -> np.ndarray:
+    """docs/urdf.md's rule for directions a calibration only bounds, written out here: in the
+    nominal frame, the calibrated pose's z translation and Euler roll / pitch set to zero."""
+    D = np.linalg.inv(N) @ C
+    roll, pitch = math.atan2(D[2, 1], D[2, 2]), math.asin(-max(-1.0, min(1.0, D[2, 0])))
+    R = rpy_matrix(roll, pitch, 0.0)
+    yaw = math.atan2((D[:3, :3] @ R.T)[1, 0], (D[:3, :3] @ R.T)[0, 0])
+    t = D[:3, 3].copy()
+    if "z" in directions:
+        t[2] = 0.0
+    kept = rpy_matrix(0.0 if "roll" in directions else roll, 0.0 if "pitch" in directions else pitch, yaw)
+    return N @ homogeneous(kept, t)
+
+
+def _expected(tmp: Path, keep: bool = True) -> dict[str, np.ndarray]:
     """Every published frame's pose in lidar_link, from calibration.yaml's T_reference_sensor
-    (measured frames) and REP 103's optical rotation - not from rigcal's frame module."""
+    (measured frames) and REP 103's optical rotation - not from rigcal's frame module; with
+    ``keep``, a sensor's bounded directions (the 2D radar's z, roll, pitch) at robot.urdf's
+    values (docs/urdf.md)."""
     cal = yaml.safe_load((tmp / "res" / "calibration.yaml").read_text())
     T_ref = {n: np.array(e["T_reference_sensor"]) for n, e in cal["sensors"].items()}
+    if keep:
+        nominal = edges_to_poses(urdf_edges((tmp / "robot.urdf").read_text()), "lidar_link")
+        for n, e in cal["sensors"].items():
+            if e.get("bounded_offsets"):
+                T_ref[n] = _keep_nominal(nominal[FRAMES[n]], T_ref[n], list(e["bounded_offsets"]))
     out = {}
     for frame, (sensor, role) in PUBLISHED.items():
         T = T_ref[sensor]
@@ -309,7 +330,7 @@ def test_every_writer_publishes_the_same_transform_for_every_frame(calibrated, t
 def test_a_frame_the_urdf_lacks_is_published_and_added_alike(calibrated, tmp_path, capsys):
     tmp, _ = calibrated
     cal = tmp / "res" / "calibration.yaml"
-    expected = _expected(tmp)
+    expected = _expected(tmp, keep=False)  # no radar link to keep its bounded directions from
     urdf = tmp / "robot_noradar.urdf"
     assert run(["urdf", str(urdf), str(cal), "--add-missing", "--out", str(tmp_path / "add.urdf")]) == 0
     assert run(["export", str(cal), "--urdf", str(urdf), "--format", "ros1-launch",

@@ -24,7 +24,10 @@ Fields of a sensor:
 * ``frame_id``: defaults to the accumulator entries' ``frame_id`` for accumulator input, else
   to ``name``;
 * ``elevation_fov_deg``: the largest |elevation| a radar sees, in degrees (a half-angle, like the
-  original tool's ``max_elevation``); in (0, 90]; default 9.
+  original tool's ``max_elevation``); in (0, 90]; default 9;
+* ``prior``: tolerances (1 sigma) of the sensor's nominal mounting given with ``--initial``,
+  e.g. ``{z_m: 0.01, roll_deg: 0.5, pitch_deg: 0.5}`` along / about the sensor's own axes
+  (:mod:`rigcal.problem.priors`; 0 holds a direction).
 
 The ignore file's boards are excluded with :meth:`Dataset.with_excluded` by :func:`load_manifest`
 and :func:`parse_manifest`; the ``*_with_ignored`` variants return the dataset without them plus
@@ -65,11 +68,12 @@ from rigcal.io.atomic import atomic_write_text, mark_output
 from rigcal.io.dataset.detections_csv import format_detections_csv, parse_detections_csv
 from rigcal.io.dataset.ignore import parse_ignore_yaml
 from rigcal.io.limits import path_stat
+from rigcal.problem.priors import check_prior
 
 MANIFEST_NAME = "rig.yaml"
 
 _TOP_KEYS = ("sensors", "reference", "board", "ignore")
-_SENSOR_KEYS = ("name", "kind", "detections", "frame_id", "elevation_fov_deg", "topic")
+_SENSOR_KEYS = ("name", "kind", "detections", "frame_id", "elevation_fov_deg", "topic", "prior")
 _BOARD_KEYS = tuple(f.name for f in fields(BoardGeometry))
 _CSV_SUFFIXES = (".csv",)
 _YAML_SUFFIXES = (".yaml", ".yml")
@@ -87,6 +91,7 @@ class _SensorEntry:
     frame_id: str | None
     elevation_fov_deg: float | None
     topic: str | None
+    prior: Mapping[str, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -178,7 +183,8 @@ def _parse_sensor(i: int, raw: Any, source: str) -> _SensorEntry:
                 f"(the largest |elevation| the radar sees), got {elevation!r}"
             )
         elevation = float(elevation)
-    return _SensorEntry(i, name, kind, detections, frame_id, elevation, topic)
+    prior = check_prior(raw["prior"], f"{where}.prior") if "prior" in raw else None
+    return _SensorEntry(i, name, kind, detections, frame_id, elevation, topic, prior)
 
 
 def parse_board(raw: Any, source: str) -> BoardGeometry:
@@ -301,6 +307,7 @@ def _load_sensor(
             DEFAULT_MAX_ELEVATION_DEG if elevation is None else elevation
         ),
         source=str(path),
+        prior=entry.prior or {},
     )
 
 
@@ -459,6 +466,8 @@ def format_manifest(dataset: Dataset, detection_files: Mapping[str, str]) -> str
         }
         if s.kind.is_radar or s.max_elevation_rad != default_elevation:
             entry["elevation_fov_deg"] = _degrees_for(float(s.max_elevation_rad))
+        if s.prior:
+            entry["prior"] = {k: float(v) for k, v in s.prior.items()}
         sensors.append(entry)
     data: dict[str, Any] = {"sensors": sensors}
     if dataset.reference is not None:

@@ -127,6 +127,8 @@ def frame_plan(result: AbsoluteResult, parent_frame: str | None = None, urdf: An
         "absolute", parent, body_transforms(result, parent), "absolute",
         {est.frame_id: est.kind.value for est in result.sensors.values()},
         names={est.frame_id: name for name, est in result.sensors.items()},
+        bounded={est.frame_id: tuple(est.bounded) for est in result.sensors.values() if est.bounded},
+        bounded_values={est.frame_id: est.bounded_values for est in result.sensors.values() if est.bounded},
     )
     return plan_frames(cal, urdf)
 

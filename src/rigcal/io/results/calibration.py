@@ -95,6 +95,8 @@ def calibration_transforms(result: CalibrationResult) -> Any:
         kind, parent, transforms, "calibration",
         {est.frame_id: est.kind.value for est in result.sensors.values()},
         names={est.frame_id: name for name, est in result.sensors.items()},
+        bounded={est.frame_id: tuple(est.bounded) for est in result.sensors.values() if est.bounded},
+        bounded_values={est.frame_id: est.bounded_values for est in result.sensors.values() if est.bounded},
     )
 
 
@@ -133,7 +135,9 @@ def original_sensor_yaml_text(result: CalibrationResult, name: str, plan: Any = 
     ``T_sensor_reference`` (4x4 nested list)."""
     est = _sensor(result, name)
     plan = plan if plan is not None else frame_plan(result)
-    T_sensor_reference = invert(np.asarray(est.T_reference_sensor, dtype=float))
+    # what every writer publishes (a bounded direction may keep the URDF's value)
+    measured = plan.sensor_frame(est.frame_id).measured
+    T_sensor_reference = invert(invert(plan.T_root(plan.reference.measured)) @ plan.T_root(measured))
     return _dump_yaml(
         {
             "target": plan.sensor_frame(est.frame_id).measured,

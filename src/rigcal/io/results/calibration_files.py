@@ -45,6 +45,14 @@ class CalibrationTransforms:
     #: frame -> (link, measured frame, T_link_measured) recorded in the file's ``frames`` block
     recorded: Mapping[str, tuple[str, str, np.ndarray]] = field(default_factory=dict)
     urdf: str | None = None  # the URDF the recorded frames were resolved in
+    #: child frame -> the directions the calibration only bounds (a 2D radar's roll, pitch, z
+    #: about / along its own axes), if any
+    bounded: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
+    #: child frame -> what is written of them: {quantity: (low, high, estimate)} (m / deg)
+    bounded_values: Mapping[str, Mapping[str, tuple[float, float, float]]] = field(default_factory=dict)
+    #: child frame -> the pose published with the URDF's values for its bounded directions
+    #: (``kept_from_urdf`` in the ``frames`` block), ``T_reference_measured``
+    kept: Mapping[str, np.ndarray] = field(default_factory=dict)
 
 
 def _matrix(value: Any, where: str) -> np.ndarray:
@@ -61,6 +69,46 @@ def _kinds(sensors: Mapping[str, Any]) -> dict[str, str]:
 
 def _names(sensors: Mapping[str, Any]) -> dict[str, str]:
     return {str(entry.get("frame_id", name)): str(name) for name, entry in sensors.items()}
+
+
+_LOCAL_DIRECTIONS = ("roll", "pitch", "z")
+
+
+def _bounded(sensors: Mapping[str, Any], source: str) -> tuple[dict, dict]:
+    """(frame -> bounded directions, frame -> bounded values) of a rigcal result file's sensors:
+    the keys of ``bounded_offsets`` (else, in older files, of ``bounded``)."""
+    directions, values = {}, {}
+    for name, entry in sensors.items():
+        frame = str(entry.get("frame_id", name))
+        raw = entry.get("bounded") or {}
+        offsets = entry.get("bounded_offsets", raw)
+        dirs = list(offsets) if isinstance(offsets, dict) else offsets
+        if not isinstance(dirs, list) or any(d not in _LOCAL_DIRECTIONS for d in dirs):
+            raise InputError(f"{source}: sensors.{name}.bounded_offsets: expected a mapping of "
+                             f"{', '.join(_LOCAL_DIRECTIONS)} -> [low, high], got {offsets!r}")
+        if dirs:
+            directions[frame] = tuple(dirs)
+        if isinstance(raw, dict):
+            vals = {k: (float(v["low"]), float(v["high"]), float(v["estimate"]))
+                    for k, v in raw.items() if isinstance(v, dict) and {"low", "high", "estimate"} <= set(v)}
+            if vals:
+                values[frame] = vals
+    return directions, values
+
+
+def _kept(block: Any, source: str) -> dict[str, np.ndarray]:
+    """frame_id -> ``T_reference_measured`` of the ``frames`` block's ``kept_from_urdf`` entries."""
+    out = {}
+    sensors = block.get("sensors") if isinstance(block, dict) else None
+    for key, e in (sensors or {}).items() if isinstance(sensors, dict) else ():
+        kept = e.get("kept_from_urdf") if isinstance(e, dict) else None
+        if kept is None:
+            continue
+        where = f"{source}: frames.sensors.{key}.kept_from_urdf"
+        if not isinstance(kept, dict) or "T_reference_measured" not in kept:
+            raise InputError(f"{where}: expected a mapping with directions and T_reference_measured")
+        out[str(e.get("frame_id", key))] = _matrix(kept["T_reference_measured"], f"{where}.T_reference_measured")
+    return out
 
 
 def parse_calibration_transforms(text: str, source: str) -> CalibrationTransforms:
@@ -88,7 +136,9 @@ def parse_calibration_transforms(text: str, source: str) -> CalibrationTransform
     from rigcal.io.results.frames import recorded_frames
 
     ref_frame, recorded, urdf = recorded_frames(data.get("frames"), source)
-    extra = {"names": _names(sensors), "recorded": recorded, "urdf": urdf}
+    bounded, bounded_values = _bounded(sensors, source)
+    extra = {"names": _names(sensors), "recorded": recorded, "urdf": urdf, "bounded": bounded,
+             "bounded_values": bounded_values, "kept": _kept(data.get("frames"), source)}
     if "body_frame" in data:
         bf = data["body_frame"]
         parent = bf.get("name", "base_link") if isinstance(bf, dict) else bf

@@ -27,6 +27,12 @@ Rules:
    any sensor: a camera reference with a separate optical link gives the root ``B`` and the
    edge ``(B, O)``), or the body frame of an absolute (``body_frame``) or motion-capture
    (``robot_frame``) calibration; ``body_link`` renames it.
+5. Directions a calibration only bounds (a 2D radar's z, roll, pitch without a prior,
+   ``bounded`` of :class:`~rigcal.io.results.calibration_files.CalibrationTransforms`) keep the
+   URDF's values where the URDF has the sensor's frame (relative to the reference's):
+   :func:`rigcal.io.results.bounded.keep_nominal`; without a URDF, the pose recorded as kept
+   (``kept_from_urdf`` in the ``frames`` block), else the estimate. ``write_bounded`` writes
+   the estimate anyway.
 
 ``calibration.yaml`` records the outcome (``frames``: the reference frame, the URDF used, each
 sensor's link and measured frame, and the transforms), so that a later export without the URDF
@@ -37,7 +43,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -137,6 +143,8 @@ class FramePlan:
     urdf: str | None = None
     notes: tuple[str, ...] = ()
     body: bool = False  # the root is a body frame (absolute, motion capture), not a sensor
+    #: frame_id -> the bounded directions whose values are the URDF's (rule 5)
+    kept: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
 
     def T_root(self, frame: str) -> np.ndarray:
         """``T_root_frame`` (4, 4) by composing the published transforms (a new array)."""
@@ -241,12 +249,14 @@ def plan_frames(
     body_link: str | None = None,
     *,
     use_recorded: bool = True,
+    write_bounded: bool = False,
 ) -> FramePlan:
     """The static transforms every writer emits for ``cal`` (a
     :class:`~rigcal.io.results.calibration_files.CalibrationTransforms`), resolving frame names
     in ``urdf`` (a parsed :class:`~rigcal.io.results.urdf.Urdf`) when given, else in what
     ``cal`` recorded (``use_recorded``), else by rule 2. ``body_link`` renames the frame the
-    calibration is relative to (the reference sensor's frame or the body frame).
+    calibration is relative to (the reference sensor's frame or the body frame). Bounded
+    directions as rule 5 (``write_bounded``: the estimate).
 
     InputError when two frames would be published under one name, or a frame is the root."""
     parent = body_link or cal.parent_frame
@@ -288,6 +298,9 @@ def plan_frames(
             )
         owner[frame] = who
 
+    bounded = dict(getattr(cal, "bounded", {}) or {})
+    kept_recorded = dict(getattr(cal, "kept", {}) or {}) if use_recorded else {}
+    kept: dict[str, tuple[str, ...]] = {}
     for frame_id, T in cal.transforms.items():
         sensor = names.get(frame_id, "")
         s = resolve(sensor, kinds.get(frame_id), frame_id)
@@ -296,6 +309,15 @@ def plan_frames(
         if s.measured != s.link:
             claim(s.measured, who)
         T_ref_measured = as_rigid(T, f"{cal.source or 'calibration'}: T_{cal.parent_frame}_{frame_id}")
+        dirs = tuple(bounded.get(frame_id, ()))
+        if dirs and not write_bounded:  # rule 5
+            nominal = _nominal(urdf, reference, s) if urdf is not None else None
+            if nominal is not None:
+                from rigcal.io.results.bounded import keep_nominal
+
+                T_ref_measured, kept[frame_id] = keep_nominal(nominal, T_ref_measured, dirs), dirs
+            elif urdf is None and frame_id in kept_recorded:
+                T_ref_measured, kept[frame_id] = np.asarray(kept_recorded[frame_id], dtype=float), dirs
         T_root_link = T_root_ref @ T_ref_measured @ invert(s.T_link_measured)
         T_root_link.setflags(write=False)
         transforms.append(StaticTransform(root, s.link, T_root_link, sensor, True))
@@ -304,7 +326,20 @@ def plan_frames(
         sensors.append(s)
     return FramePlan(root, reference, tuple(sensors), tuple(transforms),
                      getattr(urdf, "source", None) if urdf is not None else getattr(cal, "urdf", None),
-                     tuple(notes), body)
+                     tuple(notes), body, kept)
+
+
+def _nominal(urdf: Any, reference: SensorFrame, s: SensorFrame) -> np.ndarray | None:
+    """The URDF's pose of a sensor's measured frame in the reference's measured frame (forward
+    kinematics), or None when the URDF lacks either or the chain is not fixed."""
+    from rigcal.io.results.urdf import forward_kinematics
+
+    if reference.measured not in urdf.links or s.measured not in urdf.links:
+        return None
+    try:
+        return forward_kinematics(urdf, reference.measured, s.measured)
+    except InputError:
+        return None
 
 
 def camera_frames_without_urdf(plan: FramePlan) -> list[SensorFrame]:
@@ -351,6 +386,10 @@ def frames_block(plan: FramePlan) -> dict[str, Any]:
         out: dict[str, Any] = {"frame_id": s.frame_id, "link": s.link, "measured_frame": s.measured}
         if s.link != s.measured:
             out["T_link_measured"] = [[float(v) + 0.0 for v in row] for row in s.T_link_measured]
+        if s.frame_id in plan.kept:  # rule 5: what is published, for a later plan without the URDF
+            T = invert(plan.T_root(plan.reference.measured)) @ plan.T_root(s.measured)
+            out["kept_from_urdf"] = {"directions": list(plan.kept[s.frame_id]),
+                                     "T_reference_measured": [[float(v) + 0.0 for v in row] for row in T]}
         return out
 
     return {
@@ -428,7 +467,8 @@ def edges_of(transforms: Mapping[str, Any] | Sequence[Any], parent_frame: str | 
     return out
 
 
-def plan_with_checks(cal: Any, urdf: Any = None, body_link: str | None = None) -> tuple[FramePlan, list[str]]:
+def plan_with_checks(cal: Any, urdf: Any = None, body_link: str | None = None,
+                     write_bounded: bool = False) -> tuple[FramePlan, list[str]]:
     """:func:`plan_frames` and the warnings a user must see where outputs could disagree:
 
     * with ``urdf``: frames the URDF names differently from what the calibration recorded (or,
@@ -437,7 +477,7 @@ def plan_with_checks(cal: Any, urdf: Any = None, body_link: str | None = None) -
     * without ``urdf`` and without a record: cameras whose frame_id does not say "optical" are
       published as optical frames; a body-convention link of that name would be 120 deg off.
     """
-    plan = plan_frames(cal, urdf, body_link)
+    plan = plan_frames(cal, urdf, body_link, write_bounded=write_bounded)
     warnings: list[str] = []
     if urdf is not None:
         recorded = bool(getattr(cal, "recorded", None))

@@ -40,6 +40,9 @@ def _covariance(value: Any, where: str) -> np.ndarray:
 
 
 def _bounded(value: Any, where: str) -> dict[str, tuple[float, float]]:
+    """Bounded directions -> (low, high) offsets from the estimate about / along the sensor's own
+    axes: ``bounded_offsets`` (older files: ``bounded``; now ``bounded`` holds the pose table's
+    absolute ranges)."""
     if value in (None, {}):
         return {}
     if not isinstance(value, dict):
@@ -106,7 +109,8 @@ def parse_stored_calibration(text: str, source: str) -> StoredCalibration:
             raise InputError(f"{where}.held: expected a list of directions ({', '.join(TANGENT)}), got {held!r}")
         parsed[str(name)] = StoredSensor(
             str(name), kind, frame, as_rigid(entry["T_reference_sensor"], f"{where}.T_reference_sensor", tol=1e-5),
-            _covariance(entry["covariance"], f"{where}.covariance"), _bounded(entry.get("bounded"), f"{where}.bounded"),
+            _covariance(entry["covariance"], f"{where}.covariance"), _bounded(entry["bounded_offsets"], f"{where}.bounded_offsets") if "bounded_offsets" in entry
+            else _bounded(entry.get("bounded"), f"{where}.bounded"),
             tuple(held))
     relative = {}
     rel = data.get("relative") or {}

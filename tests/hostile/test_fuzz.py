@@ -9,6 +9,7 @@ huge numbers, spliced garbage) and plain random bytes. Every test runs inside ``
 
 from __future__ import annotations
 
+import json
 import warnings
 from types import SimpleNamespace
 
@@ -470,3 +471,138 @@ def test_fuzz_study_options():
         assert all(1 <= n <= MAX_MEASUREMENTS for n in args.measurements)
 
     fuzz()
+
+
+# -------------------------------------------------------------------------------- check and diff
+def _stored_seed(tmp_path):
+    """A compact calibration.yaml (only the fields check and diff read, leaf lists in flow
+    style, so that mutations land on them) and new detections of the same rig."""
+    from rigcal.io._text import dump_yaml
+    from rigcal.io.results.calibration import result_to_yaml_text
+    from rigcal.problem.calibrate import CalibrationOptions, calibrate
+    from rigcal.sim.rig import make_rig_placements, prius_like_rig, simulate
+
+    sensors = prius_like_rig()
+    rng = np.random.default_rng(5)
+    sim = simulate(sensors, make_rig_placements(rng, sensors, 8, min_fraction=1.0), rng=rng)
+    result = calibrate(sim.dataset, CalibrationOptions(mode="fcpe", cross_validation_folds=0))
+    import yaml
+
+    full = yaml.safe_load(result_to_yaml_text(result))
+    keep = {"reference", "mode", "num_boards", "sensors", "relative", "noise_model"}
+    compact = {k: v for k, v in full.items() if k in keep}
+    for s in compact["sensors"].values():
+        for k in [k for k in s if k not in ("kind", "frame_id", "T_reference_sensor", "covariance", "held", "bounded")]:
+            del s[k]
+    for r in compact["relative"].values():
+        for k in [k for k in r if k not in ("to", "from", "covariance")]:
+            del r[k]
+    rng = np.random.default_rng(6)
+    new = simulate(sensors, make_rig_placements(rng, sensors, 4, min_fraction=1.0), rng=rng).dataset
+    return dump_yaml(compact, flow=None).encode(), new
+
+
+def test_fuzz_stored_calibration(limited, tmp_path):
+    """``rigcal check`` / ``diff``'s reader: a (mutated) calibration.yaml is refused with a
+    RigcalError or read as a calibration that check, diff and the check page then handle
+    without an exception or a floating-point warning."""
+    from rigcal.io.results.check_report import json_text
+    from rigcal.io.results.stored import parse_stored_calibration
+    from rigcal.problem.check import check
+    from rigcal.problem.diff import diff
+    from rigcal.report.check_page import render_check
+
+    seed, dataset = _stored_seed(tmp_path)
+    original = parse_stored_calibration(seed.decode(), "seed.yaml")
+    seeds = [seed, seed.replace(b"num_boards: 8", b"num_boards: " + b"9" * 5000),
+             b"reference: a\nsensors: {a: " * 30 + b"}" * 30]
+
+    def target(text):
+        stored = parse_stored_calibration(text, "calibration.yaml")
+        for name, s in stored.sensors.items():
+            assert np.all(np.isfinite(s.covariance)) and np.all(np.isfinite(s.T_reference_sensor))
+            assert name.isprintable() and np.min(np.linalg.eigvalsh(s.covariance)) > -1e-6
+        data = check(stored, dataset).to_dict()
+        render_check(json.loads(json_text(data)))
+        diff(stored, stored)
+        diff(original, stored)
+
+    run_fuzz(limited, seeds, target, text=True, examples=100)
+
+
+def test_fuzz_check_and_diff_arguments(limited, tmp_path):
+    """``rigcal check`` / ``diff`` / ``check --batch`` with any mix of arguments (inputs swapped,
+    files for folders, missing paths, control characters, --out onto an input, --alpha out of
+    range, schedulers that cannot be used): an exit code the help documents, never an
+    exception, and no input changed."""
+    import contextlib
+    import io
+    import shutil
+    from pathlib import Path
+
+    from rigcal.cli.main import run
+    from rigcal.io.atomic import mark_output
+    from rigcal.io.dataset.manifest import write_dataset
+
+    seed, dataset = _stored_seed(tmp_path)
+    (tmp_path / "cal").mkdir()
+    (tmp_path / "cal" / "calibration.yaml").write_bytes(seed)
+    mark_output(tmp_path / "cal")  # as rigcal calibrate leaves it
+    write_dataset(dataset, tmp_path / "data")
+    shutil.copytree(tmp_path / "data", tmp_path / "fleet" / "car1")
+    shutil.copytree(tmp_path / "cal", tmp_path / "calib" / "car1")
+    (tmp_path / "notes.txt").write_text("mine")
+
+    pristine = tmp_path.parent / f"{tmp_path.name}-pristine"
+    shutil.copytree(tmp_path, pristine)
+    before = {p: p.read_bytes() for p in sorted(tmp_path.rglob("*")) if p.is_file()}
+
+    def inputs(args: list[str]) -> set[Path]:
+        """The files a run reads: every path argument but --out's value, and what is below it."""
+        given = {Path(a) for i, a in enumerate(args) if a.startswith(str(tmp_path)) and args[i - 1] != "--out"}
+        return {p for p in before if any(p == g or g in p.parents for g in given)}
+
+    def restore() -> None:  # every example starts from the same files (a run may replace a rigcal folder
+        shutil.rmtree(tmp_path)  # that is not one of its inputs: --out onto a marked folder)
+        shutil.copytree(pristine, tmp_path)
+
+    paths = st.sampled_from([str(tmp_path / p) for p in ("cal", "cal/calibration.yaml", "data", "data/rig.yaml",
+                                                          "fleet/car1", "notes.txt", "nope", "fleet", "calib",
+                                                          "car\n1", "out/a", "out/b[/x]")])
+    calibrations = st.sampled_from([str(tmp_path / p) for p in ("cal", "cal/calibration.yaml")])
+    data = st.sampled_from([str(tmp_path / p) for p in ("data", "data/rig.yaml", "cal")])
+    alphas = st.sampled_from(["0.05", "0", "0.5", "nan", "-1", "abc", "1e-300", "0.4999"])
+
+    def maybe(option, values):
+        return st.one_of(st.just([]), values.map(lambda v: [option, v]))
+
+    @st.composite
+    def argv(draw):
+        command = draw(st.sampled_from(["check", "check", "check --batch", "diff"]))
+        if command == "check --batch":
+            return ["check", "--scheduler", "serial", *draw(maybe("--scheduler", st.sampled_from(
+                ["tls://127.0.0.1:1", "x:y:z", "", "inproc://a"]))), *draw(maybe("--calibrations", paths)),
+                *draw(maybe("--out", paths)), *draw(maybe("--alpha", alphas)), *draw(st.sampled_from([[], ["--json"]])),
+                "--batch", *draw(st.lists(paths, min_size=1, max_size=3))]
+        positional = draw(st.one_of(st.tuples(calibrations, data).map(list), st.lists(paths, max_size=3)))
+        extra = draw(maybe("--alpha", alphas))
+        if command == "check":
+            extra += draw(maybe("--out", paths)) + draw(maybe("--rig", paths)) + draw(st.sampled_from([[], ["--json"]]))
+        return [command, *positional, *extra]
+
+    @settings(FUZZ, max_examples=50)
+    @given(argv())
+    def fuzz(args):
+        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()) as err:
+            try:
+                code = run(args)
+            except SystemExit as exc:  # argparse: a usage error
+                code = exc.code
+        assert code in (0, 1, 2, 4, 6, 7), (args, code, err.getvalue())
+        if code == 1:
+            assert err.getvalue().count("rigcal: error:") >= 1, (args, err.getvalue())
+        changed = [str(p) for p in inputs(args) if not p.is_file() or p.read_bytes() != before[p]]
+        restore()
+        assert not changed, (args, changed)
+
+    limited(fuzz, MEMORY_MB, 240)

@@ -80,6 +80,7 @@ def run_batch(args, console) -> int:
     from rigcal.io.results.calibration import result_to_json_text
     from rigcal.io.results.report import write_calibration_set
     from rigcal.study.scale import LOCAL, SERIAL, check_scheduler
+    from rich.markup import escape
 
     if args.manifest or args.rig or args.lidar or args.camera or args.radar or args.radar3d or args.ignore:
         raise InputError("--batch takes dataset folders only: no MANIFEST, --rig, --lidar/--camera/--radar "
@@ -113,7 +114,7 @@ def run_batch(args, console) -> int:
     for o in run.outcomes:
         detail = printable(o.error or "") if o.status in (FAILED, MISSING) else ", ".join(
             f"{p} {v * 1000:.2f}" for p, v in o.value.rmse_m.items())
-        t.add_row(printable(o.entry.name), o.status, detail)
+        t.add_row(escape(printable(o.entry.name)), o.status, escape(detail))  # a name or path "a[/b]" is no markup
     console.print(t)
     if args.json:
         doc = [{"dataset": o.entry.name, "folder": str(o.entry.path), "status": o.status, "error": o.error,

@@ -3,9 +3,10 @@ its calibration (:func:`rigcal.problem.check.check`); ``--batch``: a fleet on Da
 
 from __future__ import annotations
 
+import math
 import sys
 
-from rigcal.cli.args import number, subcommand
+from rigcal.cli.args import subcommand
 from rigcal.cli.calibrate import SCHEDULER_HELP
 from rigcal.cli.codes import EXIT_CANNOT_TELL, EXIT_MOVED, EXIT_PARTIAL
 
@@ -42,7 +43,7 @@ def add_parser(sub) -> None:
     c.add_argument("--rig", metavar="RIG_YAML", help="detection rig: treat DATA as a recording, detect, then check")
     c.add_argument("--out", metavar="DIR", help="write check.json and check.html there (required with --batch)")
     c.add_argument("--json", action="store_true", help="print the result as JSON on stdout")
-    c.add_argument("--alpha", type=number(1e-6, 0.5), default=0.05, metavar="A",
+    c.add_argument("--alpha", type=false_alarm_rate, default=0.05, metavar="A",
                    help="false-alarm rate on an unchanged rig, shared by its sensors (default 0.05: the 95 %% level)")
     c.add_argument("--batch", nargs="+", metavar="DIR",
                    help="check many vehicles: each DIR holds a rig.yaml manifest of new detections; its calibration is "
@@ -54,6 +55,39 @@ def add_parser(sub) -> None:
     c.set_defaults(func=run)
 
 
+#: the smallest --alpha (a smaller false-alarm rate asks for more boards than a check has)
+MIN_ALPHA = 1e-6
+
+
+def false_alarm_rate(text: str) -> float:
+    """``--alpha``: a number above 0 and below 0.5 (argparse makes a refusal a usage error naming
+    the option, exit code 2)."""
+    import argparse
+
+    try:
+        x = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a false-alarm rate such as 0.05, got {text!r}") from None
+    if not (math.isfinite(x) and MIN_ALPHA <= x < 0.5):
+        raise argparse.ArgumentTypeError(f"expected a false-alarm rate from {MIN_ALPHA:g} to below 0.5 "
+                                         f"(e.g. 0.05), got {text!r}")
+    return x
+
+
+false_alarm_rate.__name__ = "number"
+
+
+def text(value: object) -> str:
+    """``value`` for a rich console with markup on: control characters escaped
+    (:func:`rigcal.errors.printable`) and square brackets too, so that a path or name such as
+    ``a[/b]`` is shown as it is (not a markup error)."""
+    from rich.markup import escape
+
+    from rigcal.errors import printable
+
+    return escape(printable(value))
+
+
 def exit_code(status: str) -> int:
     """The exit code of a check's (or diff's) status."""
     return {"moved": EXIT_MOVED, "cannot tell": EXIT_CANNOT_TELL}.get(status, 0)
@@ -62,11 +96,37 @@ def exit_code(status: str) -> int:
 def load_data(args, console):
     """The new detections: a manifest, or a recording detected first (``--rig``)."""
     from rigcal.cli.detect import detect_recording
+    from rigcal.errors import InputError
     from rigcal.io.dataset.manifest import load_manifest
 
     if args.rig:
         return detect_recording(args.data, args.rig, console).dataset
-    return load_manifest(args.data)
+    try:
+        return load_manifest(args.data)
+    except InputError:
+        _refuse_calibration_as_data(args.data)
+        raise
+
+
+def _refuse_calibration_as_data(data: str) -> None:
+    """InputError when DATA is a calibration (or its result folder) rather than new detections:
+    the arguments given the wrong way round."""
+    from pathlib import Path
+
+    from rigcal.errors import InputError, printable
+    from rigcal.io.dataset.manifest import MANIFEST_NAME
+
+    p = Path(data)
+    try:
+        if p.is_dir() and not (p / MANIFEST_NAME).exists():
+            p = p / "calibration.yaml"
+        looks = p.name == "calibration.yaml" and p.is_file()
+    except (OSError, ValueError):
+        return
+    if looks:
+        raise InputError(f"DATA {printable(data)}: a calibration, expected new detections (a {MANIFEST_NAME} "
+                         "manifest or its folder); the calibration comes first: rigcal check calibration.yaml "
+                         "rig.yaml")
 
 
 def run(args, console) -> int:
@@ -77,6 +137,8 @@ def run(args, console) -> int:
             raise InputError("--batch takes vehicle folders only: no CALIBRATION, DATA or --rig with it")
         if not args.out:
             raise InputError("--batch needs --out DIR (each vehicle's check.html and the fleet summary go there)")
+        if args.json:
+            raise InputError("--json applies to one check; --batch writes OUT/fleet.json")
         return run_batch(args, console)
     if args.calibrations:
         raise InputError("--calibrations applies to --batch only")
@@ -84,6 +146,11 @@ def run(args, console) -> int:
         raise InputError("--scheduler applies to --batch only (one check runs in this process)")
     if not args.calibration or not args.data:
         raise InputError("give the calibration and the new detections: rigcal check calibration.yaml rig.yaml")
+    if args.out:
+        from rigcal.io.atomic import check_output_folder
+
+        # before any work: not a file, not a user's folder, not (or holding) an input, writable
+        check_output_folder(args.out, inputs=tuple(p for p in (args.calibration, args.data, args.rig) if p))
     from rigcal.io.results.stored import read_stored_calibration
     from rigcal.problem.check import CheckOptions, check
 
@@ -103,7 +170,7 @@ def run(args, console) -> int:
         sys.stdout.write(json_text(data))
     print_check(result, console)
     if args.out:
-        console.print(f"check.json and check.html written to {args.out}/")
+        console.print(f"check.json and check.html written to {text(args.out)}/")
     return exit_code(result.status)
 
 
@@ -113,31 +180,37 @@ def print_check(result, console) -> None:
     from rigcal.cli.output import table
     from rigcal.report.check_page import detectable_text
 
+    from rigcal.errors import printable
+
     status = result.status
-    head = {"moved": f"[bold red]MOVED[/bold red]: {', '.join(result.moved)}",
+    head = {"moved": f"[bold red]MOVED[/bold red]: {text(', '.join(result.moved))}",
             "cannot tell": "[bold yellow]cannot tell[/bold yellow] for some sensors (none found moved)",
             "unchanged": "[bold green]unchanged[/bold green]: every sensor where it was calibrated"}[status]
-    console.print(f"check of {result.calibration} against {result.data or 'the data'} ({result.num_boards} boards): "
+    console.print(f"check of {text(result.calibration)} against {text(result.data or 'the data')} "
+                  f"({result.num_boards} boards): "
                   + head)
     t = table("sensors (worst first)", ("sensor", "verdict", f"detectable ({result.power:.0%})"))
     for name, s in result.sensors.items():
         det = "-" if s.test is None else detectable_text(s.test.detectable_translation_m, s.test.detectable_rotation_deg)
-        t.add_row(name, s.headline, det)
+        t.add_row(text(name), text(s.headline), det)
     console.print(t)
     for name, s in result.sensors.items():
         if s.status == "moved":
-            console.print(f"  {name}: {s.direction}", markup=False)
+            console.print(f"  {printable(name)}: {printable(s.direction)}", markup=False)
     p = table("sensor pairs: reduced chi-square of the new residuals (about 1 when nothing moved)",
               ("pair", "boards", "RMS (mm)", "at calibration", "moved re-estimated"), right=True)
     for label, pc in result.pairs.items():
-        p.add_row(label, str(pc.boards), f"{pc.rms_m * 1000:.1f}", f"{pc.before:.2f}", f"{pc.after:.2f}")
+        p.add_row(text(label), str(pc.boards), f"{pc.rms_m * 1000:.1f}", f"{pc.before:.2f}", f"{pc.after:.2f}")
     console.print(p)
     dt, dr = result.detectable
-    console.print(f"power: these {result.num_boards} boards find moves of {detectable_text(dt, dr)} or more on every "
-                  f"sensor told, {result.power:.0%} of the time; false alarms on at most {result.alpha:.0%} of "
-                  "unchanged rigs", markup=False)
+    if math.isfinite(dt):
+        console.print(f"power: these {result.num_boards} boards find moves of {detectable_text(dt, dr)} or more on "
+                      f"every sensor told, {result.power:.0%} of the time; false alarms on at most {result.alpha:.0%} "
+                      "of unchanged rigs", markup=False)
+    else:
+        console.print(f"power: no sensor could be told with these {result.num_boards} board(s)", markup=False)
     for w in result.warnings:
-        console.print(f"[yellow]warning:[/yellow] {w}")
+        console.print(f"[yellow]warning:[/yellow] {text(w)}")
 
 
 # --------------------------------------------------------------------------------------------
@@ -154,6 +227,7 @@ def check_task(options, item):
 
 
 def run_batch(args, console) -> int:
+    import stat
     import time
     from pathlib import Path
 
@@ -162,7 +236,8 @@ def run_batch(args, console) -> int:
     from rigcal.fleet import FAILED, MISSING, fleet_entries, run_fleet
     from rigcal.io.atomic import staged_folder
     from rigcal.io.dataset.manifest import load_manifest
-    from rigcal.io.results.check_report import vehicle_link, write_check, write_fleet
+    from rigcal.io.limits import path_stat
+    from rigcal.io.results.check_report import check_fleet_output, vehicle_link, write_check, write_fleet
     from rigcal.io.results.stored import read_stored_calibration
     from rigcal.problem.check import CheckOptions
     from rigcal.report.check_page import fleet_summary, vehicle_row
@@ -170,6 +245,19 @@ def run_batch(args, console) -> int:
 
     out = Path(args.out)
     entries, notes = fleet_entries(args.batch)
+    calibrations = Path(args.calibrations) if args.calibrations else None
+    if calibrations is not None:
+        st = path_stat(calibrations, "--calibrations")
+        if st is None or not stat.S_ISDIR(st.st_mode):
+            raise InputError(f"--calibrations {printable(calibrations)}: " + ("no such folder" if st is None else
+                             "not a folder") + "; expected the folder of the vehicles' calibrations "
+                             "(ROOT/<vehicle>/calibration.yaml, as rigcal calibrate --batch writes them)")
+
+    def calibration_folder(entry) -> Path:
+        return calibrations / entry.name if calibrations is not None else entry.path
+
+    inputs = [p for e in entries if e.problem is None for p in (e.path, calibration_folder(e))]
+    entries = check_fleet_output(out, entries, inputs + ([calibrations] if calibrations is not None else []))
     if args.scheduler.strip() not in (LOCAL, SERIAL):
         check_scheduler(args.scheduler.strip())  # before anything is read or computed
     for note in notes:
@@ -180,8 +268,7 @@ def run_batch(args, console) -> int:
     names = [e.name for e in entries]
 
     def load(entry):
-        root = Path(args.calibrations) / entry.name if args.calibrations else entry.path
-        return read_stored_calibration(root / "calibration.yaml"), load_manifest(entry.path)
+        return read_stored_calibration(calibration_folder(entry) / "calibration.yaml"), load_manifest(entry.path)
 
     def write(entry, item, data) -> str:  # in this process, as each vehicle finishes
         with staged_folder(out / entry.name) as stage:
@@ -215,13 +302,21 @@ def run_batch(args, console) -> int:
     t = table(f"check --batch: {len(names)} vehicles, {time.monotonic() - t0:.1f} s (worst first)",
               ("vehicle", "status", "worst sensor: verdict"))
     for v in summary["vehicles"]:
-        t.add_row(v["vehicle"], v["status"], f"{v['sensor']}: {v['headline']}" if v["sensor"] else v["headline"])
+        t.add_row(text(v["vehicle"]), v["status"],
+                  text(f"{v['sensor']}: {v['headline']}" if v["sensor"] else v["headline"]))
     console.print(t)
     counts = summary["counts"]
-    console.print(", ".join(f"{n} {s}" for s, n in counts.items() if n) + f"; {out}/fleet.html")
+    console.print(", ".join(f"{n} {s}" for s, n in counts.items() if n) + f"; {printable(out)}/fleet.html",
+                  markup=False, soft_wrap=True)
     if missing:
         raise RigcalError(f"--scheduler {printable(args.scheduler)}: {note}; written: {out}/fleet.html and each "
                           "finished vehicle's folder")
+    if counts["failed"]:  # one line on stderr says which (the table and fleet.html say why)
+        failed = [printable(v["vehicle"]) for v in summary["vehicles"] if v["status"] == "failed"]
+        shown = ", ".join(failed[:8]) + (f", ... ({len(failed)} in all)" if len(failed) > 8 else "")
+        done = len(names) - len(failed)
+        sys.stderr.write(f"rigcal: error: failed: {shown} (each one's reason is in the table and "
+                         f"{printable(out)}/fleet.html); {done} of {len(names)} vehicles checked and written\n")
     if counts["failed"] == len(names):
         return 1
     if counts["moved"]:

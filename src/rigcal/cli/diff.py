@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import sys
 
-from rigcal.cli.args import number, subcommand
+from rigcal.cli.args import subcommand
+from rigcal.cli.check import false_alarm_rate
 from rigcal.cli.codes import EXIT_CANNOT_TELL, EXIT_MOVED
 
 EPILOG = f"""examples:
@@ -32,13 +33,14 @@ def add_parser(sub) -> None:
     c.add_argument("old", help="the earlier calibration.yaml (or its result folder)")
     c.add_argument("new", help="the later calibration.yaml (or its result folder)")
     c.add_argument("--json", action="store_true", help="print the result as JSON on stdout")
-    c.add_argument("--alpha", type=number(1e-6, 0.5), default=0.05, metavar="A",
+    c.add_argument("--alpha", type=false_alarm_rate, default=0.05, metavar="A",
                    help="false-alarm rate when nothing changed, shared by the sensors (default 0.05)")
     c.set_defaults(func=run)
 
 
 def run(args, console) -> int:
-    from rigcal.cli.check import exit_code
+    from rigcal.cli.check import exit_code, text
+    from rigcal.errors import printable
     from rigcal.cli.output import table
     from rigcal.io.results.check_report import json_text
     from rigcal.io.results.stored import read_stored_calibration
@@ -48,19 +50,19 @@ def run(args, console) -> int:
     result = diff(read_stored_calibration(args.old), read_stored_calibration(args.new), alpha=args.alpha)
     if args.json:
         sys.stdout.write(json_text(result.to_dict()))
-    head = {"moved": f"[bold red]MOVED[/bold red]: {', '.join(result.moved)}",
+    head = {"moved": f"[bold red]MOVED[/bold red]: {text(', '.join(result.moved))}",
             "cannot tell": "[bold yellow]cannot tell[/bold yellow] for some sensors",
             "unchanged": "[bold green]unchanged[/bold green]: every difference within the uncertainty"}[result.status]
-    console.print(f"diff of {result.old} and {result.new} (reference {result.reference}): {head}")
+    console.print(f"diff of {text(result.old)} and {text(result.new)} (reference {text(result.reference)}): {head}")
     t = table("sensors (worst first)", ("sensor", "difference", "detectable (80%)"))
     for name, s in result.sensors.items():
         det = "-" if s.test is None else detectable_text(s.test.detectable_translation_m, s.test.detectable_rotation_deg)
-        t.add_row(name, s.headline, det)
+        t.add_row(text(name), text(s.headline), det)
     console.print(t)
     for name, s in result.sensors.items():
-        console.print(f"  {name}: {s.direction}", markup=False)
-    for what, names in (("only in", result.only_old), ("only in", result.only_new)):
+        console.print(f"  {printable(name)}: {printable(s.direction)}", markup=False)
+    for names, where in ((result.only_old, result.old), (result.only_new, result.new)):
         if names:
-            console.print(f"not compared ({what} {result.old if names is result.only_old else result.new}): "
-                          + ", ".join(names), markup=False)
+            console.print(f"not compared (only in {printable(where)}): " + ", ".join(map(printable, names)),
+                          markup=False)
     return exit_code(result.status)

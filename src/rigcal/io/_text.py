@@ -99,6 +99,17 @@ def load_yaml(text: str, source: str) -> Any:
         raise InputError(
             f"{source}: YAML nested too deeply; expected a plain configuration document"
         ) from None
+    except (ValueError, OverflowError) as exc:
+        # a value the constructor cannot build: an integer of more than 4300 digits (Python's
+        # conversion limit), a date such as 2024-13-45
+        detail = " ".join(str(exc).split())
+        if "integer string conversion" in detail:
+            import re
+
+            digits = re.search(r"value has (\d+) digits", detail)
+            detail = (f"an integer of {digits.group(1) if digits else 'more than 4300'} digits (at most 4300 "
+                      "are read); expected numbers of ordinary size")
+        raise InputError(f"{source}: invalid YAML value: {detail[:200]}") from None
     finally:
         loader.dispose()
 

@@ -559,11 +559,15 @@ def check(
     t0 = time.perf_counter()
     stored = calibration if isinstance(calibration, StoredCalibration) else StoredCalibration.from_result(calibration)
     check_sensors(stored, dataset)
-    with single_threaded():
-        ctx = _context(stored, dataset, options)
-        verdicts = _verdicts(ctx)
-        after = {n: v.T_estimate for n, v in verdicts.items() if v.status == MOVED and v.T_estimate is not None}
-        pairs = _pair_checks(ctx, after)
+    try:
+        with single_threaded():
+            ctx = _context(stored, dataset, options)
+            verdicts = _verdicts(ctx)
+            after = {n: v.T_estimate for n, v in verdicts.items() if v.status == MOVED and v.T_estimate is not None}
+            pairs = _pair_checks(ctx, after)
+    except np.linalg.LinAlgError as exc:  # values within every input limit that still defeat the algebra
+        raise InputError(f"{stored.source} against {dataset.source or 'the data'}: the check's linear algebra "
+                         f"failed ({exc}); expected a calibration and detections of ordinary size") from None
     warnings = []
     moved = {n for n, v in verdicts.items() if v.status == MOVED}
     clean = [p for (a, b), p in zip(ctx.pairs, pairs.values()) if a not in moved and b not in moved]

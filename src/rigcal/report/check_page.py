@@ -10,9 +10,10 @@ and loads nothing from any address. The data are what ``check.json`` / ``fleet.j
 from __future__ import annotations
 
 import math
+import re
 from typing import Any, Mapping, Sequence
 
-from rigcal.errors import InputError
+from rigcal.errors import InputError, printable
 
 CHECK_TEMPLATE = "check.html.j2"
 FLEET_TEMPLATE = "fleet.html.j2"
@@ -66,8 +67,9 @@ def render_check(data: Mapping[str, Any], source: str = "check.json", title: str
                  f"or more on every sensor told (moved or unchanged), {data['power']:.0%} of the time, with false alarms on "
                  f"at most {data['alpha']:.0%} of unchanged rigs.")
         return _template(CHECK_TEMPLATE).render(
-            title=title or f"check of {data.get('calibration', '')}", version=__version__,
-            calibration=data.get("calibration", ""), data=data.get("data", ""), num_boards=data["num_boards"],
+            title=printable(title or f"check of {data.get('calibration', '')}"), version=__version__,
+            calibration=printable(data.get("calibration", "")), data=printable(data.get("data", "")),
+            num_boards=data["num_boards"],
             css={"moved": "flagged", "unchanged": "consistent"}.get(status, ""), headline=headline, power=power,
             power_pct=f"{data['power']:.0%}", warnings=list(data.get("warnings", [])), sensors=sensors, pairs=pairs)
     except (KeyError, TypeError, ValueError, AttributeError, jinja2.TemplateError) as exc:
@@ -102,6 +104,14 @@ def fleet_summary(rows: Sequence[Mapping[str, Any]], alpha: float, note: str = "
             "counts": counts, "alpha": float(alpha), "note": note}
 
 
+def _link(href: Any) -> str | None:
+    """A vehicle's link as :func:`rigcal.io.results.check_report.vehicle_link` makes it (a
+    relative ``./<percent-encoded name>/check.html``), else none: no scheme, host or other path."""
+    if isinstance(href, str) and re.fullmatch(r"\./[A-Za-z0-9._~%-]+/check\.html", href) and "/../" not in href:
+        return href
+    return None
+
+
 def render_fleet(summary: Mapping[str, Any], source: str = "fleet.json") -> str:
     """The HTML text of ``fleet.html`` for :func:`fleet_summary`'s data."""
     import jinja2
@@ -111,15 +121,15 @@ def render_fleet(summary: Mapping[str, Any], source: str = "fleet.json") -> str:
 
     try:
         vehicles = [{
-            "name": v["vehicle"], "status": v["status"], "css": _CSS.get(v["status"], ""),
-            "sensor": v.get("sensor") or "-", "headline": v.get("headline") or "",
+            "name": printable(v["vehicle"]), "status": v["status"], "css": _CSS.get(v["status"], ""),
+            "sensor": printable(v.get("sensor") or "-"), "headline": printable(v.get("headline") or ""),
             "boards": v.get("boards") if v.get("boards") is not None else "-",
             "detectable": detectable_text(v.get("detectable_translation_m"), v.get("detectable_rotation_deg")),
-            "href": v.get("report"),
+            "href": _link(v.get("report")),
         } for v in summary["vehicles"]]
         counts = ", ".join(f"{n} {s}" for s, n in summary["counts"].items() if n)
         return _template(FLEET_TEMPLATE).render(version=__version__, total=len(vehicles), counts=counts,
-                                                vehicles=vehicles, note=summary.get("note", ""))
+                                                vehicles=vehicles, note=printable(summary.get("note", "")))
     except (KeyError, TypeError, ValueError, AttributeError, jinja2.TemplateError) as exc:
         raise InputError(f"{source}: malformed fleet data ({type(exc).__name__}: {exc})") from None
 

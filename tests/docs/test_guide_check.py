@@ -40,16 +40,17 @@ def test_recheck_example_runs_as_written(tmp_path, monkeypatch, capsys):
     calibrate_first, check, calibrate_last, diff = recheck_example()
     assert run(calibrate_first) == 0
     capsys.readouterr()
-    assert run(check) == 0
+    assert run(check) == EXIT_MOVED
     out = " ".join(capsys.readouterr().out.split())  # (the console folds lines at 80 columns)
-    assert "(9 boards): unchanged: every sensor where it was calibrated" in out
+    assert "(9 boards): MOVED: camera1" in out
     data = json.loads((root / "prius_check" / "check.json").read_text())
     cam, lidar, radar = (data["sensors"][n] for n in ("camera1", "lidar1", "radar1"))
-    assert cam["status"] == "unchanged" and round(cam["p_value"], 3) == 0.030
-    assert lidar["status"] == "unchanged" and round(lidar["p_value"], 3) == 0.045
-    assert radar["status"] == "unchanged" and round(radar["p_value"], 3) == 0.961
-    assert round(cam["detectable_translation_m"] * 1000) == 15 and round(cam["detectable_rotation_deg"], 1) == 0.7
-    assert round(radar["detectable_translation_m"] * 1000) == 114 and round(radar["detectable_rotation_deg"], 1) == 1.8
+    assert cam["status"] == "moved" and cam["alternatives"] == ["lidar1"] and round(cam["p_value"], 3) == 0.010
+    assert cam["headline"] == ("moved: 19 +- 8.3 mm, 0.38 +- 0.16 deg (p = 0.010) - or lidar1 moved: the data "
+                               "cannot tell which")
+    assert lidar["status"] == "cannot tell" and round(lidar["p_value"], 3) == 0.015
+    assert radar["status"] == "cannot tell" and "shared only with sensors that moved" in radar["reason"]
+    assert round(cam["detectable_translation_m"] * 1000) == 10 and round(cam["detectable_rotation_deg"], 1) == 0.7
     assert (root / "prius_check" / "check.html").is_file()
     assert run(calibrate_last) == 0
     capsys.readouterr()

@@ -146,3 +146,26 @@ def test_bad_input_names_the_sensor(rig):
         check(no_noise, data)
     with pytest.raises(InputError, match="alpha must be in"):
         CheckOptions(alpha=0.7)
+
+
+def test_the_stored_term_with_the_joint_covariance_is_exact():
+    """``sum_o W_o r_o``'s covariance from the joint covariance equals a Monte Carlo estimate
+    over sampled stored errors, and the bound used without it is at least as large."""
+    from rigcal.geometry.se3 import adjoint
+    from rigcal.problem.check import _stored_term
+
+    rng = np.random.default_rng(11)
+    s = prius_like_rig()
+    res = calibrate(simulate(s, make_rig_placements(rng, s, 10, min_fraction=1.0), rng=rng).dataset,
+                    CalibrationOptions(cross_validation_folds=0))
+    st = StoredCalibration.from_result(res)
+    W = {o: rng.normal(size=(6, 6)) for o in ("lidar1", "radar1")}
+    exact = _stored_term(st, "camera1", W, {})
+    names = list(st.sensors)
+    e = rng.multivariate_normal(np.zeros(6 * len(names)), st.joint, size=200_000, method="eigh")
+    part = {n: e[:, 6 * i:6 * i + 6] for i, n in enumerate(names)}
+    total = sum((part["camera1"] - part[o] @ adjoint(st.T("camera1", o)).T) @ w.T for o, w in W.items())
+    assert np.allclose(exact, np.cov(total.T), rtol=0.03, atol=0.03 * np.max(np.abs(exact)))
+    bound = _stored_term(replace(st, joint=None), "camera1", W, {
+        o: st.relative_covariance(o, "camera1") for o in W})
+    assert np.min(np.linalg.eigvalsh(bound - exact)) > -1e-12 * np.max(np.abs(exact))

@@ -808,6 +808,7 @@ def _calibrate(dataset: Dataset, options: CalibrationOptions) -> CalibrationResu
         relative=_relative(work, fit, sol, units, reference, bounded),
         noise_model=noise_model,
         verdict=result_verdict,
+        joint_covariance=None if "radar_reference" in sol.extra else sol.joint_covariance(list(sensors)),
     )
 
 

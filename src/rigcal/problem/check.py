@@ -504,14 +504,25 @@ def _stored_term(stored: StoredCalibration, s: str, W: Mapping[str, np.ndarray],
     ``T_o_s``, covariance ``C_rel[o]``) move the re-estimate of ``s``, ``W_o`` (k, 6) the share
     of partner ``o``.
 
-    When the file's relative covariances are the joint covariance's, their cross-correlations
-    are unknown: ``Cov(sum W_o r_o) <= sum W_o C_o W_o' / t_o`` for weights ``t`` summing to 1
+    With the file's joint covariance (``joint_covariance``, written since 2026-11-27) the sum's
+    covariance is exact. Else, when the file's relative covariances are the joint covariance's,
+    their cross-correlations are unknown: ``Cov(sum W_o r_o) <= sum W_o C_o W_o' / t_o`` for weights ``t`` summing to 1
     (Cauchy-Schwarz; ``t_o`` proportional to the root of the trace of ``W_o C_o W_o'``, the
     tightest such bound in the scalar case). Otherwise the relative covariances are the
     sensors' own combined as independent (:meth:`StoredCalibration.relative_covariance`),
     ``r_o = e_s - Ad(T_s_o) e_o``, and the same model gives the sum exactly: ``s``'s own stored
     error enters every pair alike, the partners' errors average."""
     k = next(iter(W.values())).shape[0]
+    if stored.joint is not None:
+        # exact: sum_o W_o r_o = (sum_o W_o) e_s - sum_o W_o Ad(T_s_o) e_o, e the sensors' stored
+        # errors with the file's joint covariance (cross terms included)
+        names = [s, *W]
+        M = [sum(W.values())] + [-w @ adjoint(stored.T(s, o)) for o, w in W.items()]
+        out = np.zeros((k, k))
+        for a, Ma in zip(names, M):
+            for b, Mb in zip(names, M):
+                out = out + Ma @ stored.joint_block(a, b) @ Mb.T
+        return 0.5 * (out + out.T)
     if stored.relative_is_joint:
         V = {o: w @ C_rel[o] @ w.T for o, w in W.items()}
         roots = {o: math.sqrt(max(float(np.trace(v)), 0.0)) for o, v in V.items()}

@@ -190,6 +190,11 @@ class CalibrationResult:
     #: sensor that never saw a target, or whose measurements leave its pose undetermined,
     #: while the others were calibrated)
     not_calibrated: dict[str, str] = field(default_factory=dict)
+    #: (6N, 6N) joint covariance of the N sensors' right perturbations (in ``sensors`` order; the
+    #: reference's rows zero), cross terms included: what ``rigcal check`` needs to combine the
+    #: errors of several stored relative poses exactly. None when the result has none (motion
+    #: capture; MCPE with a 2D radar reference, whose relative poses add their own pair fits).
+    joint_covariance: np.ndarray | None = None
     #: the frame the poses are relative to when the reference is not a sensor (motion capture:
     #: mocap.yaml's ``robot_frame``); empty: the reference sensor's ``frame_id``
     reference_frame: str = ""
@@ -234,6 +239,10 @@ class CalibrationResult:
                 for name, est in self.sensors.items()
             },
             "not_calibrated": {k: str(v) for k, v in self.not_calibrated.items()},
+            **({} if self.joint_covariance is None else {"joint_covariance": {
+                "sensors": list(self.sensors),
+                "matrix": [[f(v) for v in row] for row in np.asarray(self.joint_covariance)],
+            }}),
             "relative": {
                 key: {
                     "to": rel.to,

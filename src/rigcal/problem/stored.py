@@ -65,6 +65,12 @@ class StoredCalibration:
     mode: str = ""
     num_boards: int = 0
     source: str = "calibration"
+    #: the (6N, 6N) joint covariance of every sensor's right perturbation (``joint_covariance``
+    #: in calibration.yaml), None when the file has none; its sensors in ``joint_sensors`` order
+    #: (default: ``sensors``'); kept as the block of ``sensors`` (a calibration narrowed to some
+    #: sensors keeps their part)
+    joint: np.ndarray | None = None
+    joint_sensors: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "sensors", dict(self.sensors))
@@ -72,6 +78,26 @@ class StoredCalibration:
         if self.reference not in self.sensors:
             raise InputError(f"{self.source}: reference '{self.reference}' is not one of the sensors "
                              f"{list(self.sensors)}")
+        if self.joint is not None:
+            J = np.array(self.joint, dtype=float)
+            order = list(self.joint_sensors or self.sensors)
+            if J.shape != (6 * len(order), 6 * len(order)) or not set(self.sensors) <= set(order):
+                raise InputError(f"{self.source}: joint_covariance must be (6N, 6N) for the sensors "
+                                 f"{list(self.sensors)}, got {J.shape} for {order}")
+            idx = np.concatenate([np.arange(6) + 6 * order.index(n) for n in self.sensors])
+            J = J[np.ix_(idx, idx)]
+            J.setflags(write=False)
+            object.__setattr__(self, "joint", J)
+            object.__setattr__(self, "joint_sensors", tuple(self.sensors))
+
+    def joint_block(self, a: str, b: str) -> np.ndarray | None:
+        """The (6, 6) cross-covariance of sensors ``a`` and ``b``'s right perturbations from
+        :attr:`joint`; None without one."""
+        if self.joint is None:
+            return None
+        order = list(self.sensors)
+        i, j = 6 * order.index(a), 6 * order.index(b)
+        return np.array(self.joint[i:i + 6, j:j + 6])
 
     @property
     def relative_is_joint(self) -> bool:
@@ -129,7 +155,7 @@ class StoredCalibration:
         }
         relative = {(rel.to, rel.frm): rel.covariance for rel in result.relative.values()}
         return cls(result.reference, sensors, relative, result.noise_model, result.mode,
-                   int(result.num_boards), source)
+                   int(result.num_boards), source, getattr(result, "joint_covariance", None))
 
 
 #: the directions of a 2D radar's pose it does not measure (it sees no elevation): bounded by its

@@ -70,3 +70,45 @@ def test_a_covariance_that_is_not_one_is_refused(result):
     data["sensors"]["camera1"]["covariance"] = [[1.0]]
     with pytest.raises(InputError, match=r"covariance: expected a 6x6 matrix, got shape \(1, 1\)"):
         parse_stored_calibration(__import__("yaml").safe_dump(data), "cal.yaml")
+
+
+def test_the_joint_covariance_round_trips_and_agrees_with_every_pair(result, tmp_path):
+    """calibration.yaml's joint_covariance: each sensor's block is its own covariance, each pair's
+    relative covariance follows from it, and read back it equals the result's."""
+    from rigcal.geometry.se3 import adjoint
+
+    J = result.joint_covariance
+    names = list(result.sensors)
+    assert J.shape == (6 * len(names), 6 * len(names))
+    write_results(result, tmp_path)
+    st = read_stored_calibration(tmp_path)
+    assert np.allclose(st.joint, J, rtol=1e-12, atol=1e-22)
+    for i, a in enumerate(names):
+        assert np.allclose(J[6 * i:6 * i + 6, 6 * i:6 * i + 6], result.sensors[a].covariance, atol=1e-22)
+        for j, b in enumerate(names[i + 1:], i + 1):
+            # T_a_b's right perturbation: e_b - Ad(T_b_a) e_a
+            A = np.hstack([-adjoint(st.T(b, a)), np.eye(6)])
+            idx = np.r_[6 * i:6 * i + 6, 6 * j:6 * j + 6]
+            assert np.allclose(A @ J[np.ix_(idx, idx)] @ A.T, result.relative[f"{a}-{b}"].covariance,
+                               rtol=1e-6, atol=1e-16)
+
+
+def test_a_hand_edited_file_keeps_the_joint_only_where_it_still_holds(result):
+    import yaml
+
+    data = yaml.safe_load(result_to_yaml_text(result))
+    # a sensor removed by hand: the joint's block of the others
+    less = dict(data, sensors={k: v for k, v in data["sensors"].items() if k != "radar1"}, relative={})
+    st = parse_stored_calibration(yaml.safe_dump(less), "less.yaml")
+    assert st.joint.shape == (6 * (len(data["sensors"]) - 1),) * 2
+    # a sensor's covariance edited by hand: the joint no longer describes the file
+    edited = yaml.safe_load(result_to_yaml_text(result))
+    edited["sensors"]["camera1"]["covariance"] = (4 * np.array(edited["sensors"]["camera1"]["covariance"])).tolist()
+    assert parse_stored_calibration(yaml.safe_dump(edited), "edited.yaml").joint is None
+    broken = yaml.safe_load(result_to_yaml_text(result))
+    broken["joint_covariance"]["matrix"][0][1] += 1.0
+    with pytest.raises(InputError, match=r"joint_covariance\.matrix: expected a finite symmetric matrix"):
+        parse_stored_calibration(yaml.safe_dump(broken), "broken.yaml")
+    broken["joint_covariance"] = {"sensors": ["lidar1", "lidar1"], "matrix": []}
+    with pytest.raises(InputError, match=r"joint_covariance\.sensors: expected distinct sensor names"):
+        parse_stored_calibration(yaml.safe_dump(broken), "broken.yaml")

@@ -249,7 +249,40 @@ def parse_stored_calibration(text: str, source: str) -> StoredCalibration:
         raise InputError(f"{source}: mode: expected a calibration mode (mcpe, fcpe, pse), got {type_name(mode)}")
     return StoredCalibration(
         reference, parsed, relative, _noise_model(data.get("noise_model"), f"{source}: noise_model"),
-        printable(mode)[:40], int(num), source)
+        printable(mode)[:40], int(num), source, _joint(data.get("joint_covariance"), parsed, source))
+
+
+def _joint(value: Any, sensors: dict, source: str) -> np.ndarray | None:
+    """``joint_covariance: {sensors: [...], matrix: 6N x 6N}``, the block of ``sensors`` in their
+    order (a sensor removed by hand drops out); None when absent, when it lacks a sensor, or
+    when a sensor's own covariance (edited by hand) is not its diagonal block: the check then
+    bounds the unknown cross terms instead (conservative)."""
+    if value is None:
+        return None
+    where = f"{source}: joint_covariance"
+    if not isinstance(value, dict) or not isinstance(value.get("sensors"), list):
+        raise InputError(f"{where}: expected a mapping with 'sensors' (a list) and 'matrix'")
+    names = value["sensors"]
+    if not all(isinstance(nm, str) for nm in names) or len(set(names)) != len(names):
+        raise InputError(f"{where}.sensors: expected distinct sensor names, got {printable(repr(names))[:120]}")
+    n = 6 * len(names)
+    J = _matrix(value.get("matrix"), (n, n), f"{where}.matrix")
+    scale = max(float(np.max(np.abs(np.diag(J)))) if J.size else 0.0, 1e-30)
+    if not np.all(np.isfinite(J)) or not np.allclose(J, J.T, rtol=1e-6, atol=1e-12 * scale):
+        raise InputError(f"{where}.matrix: expected a finite symmetric matrix")
+    J = 0.5 * (J + J.T)
+    if float(np.min(np.linalg.eigvalsh(J))) < -1e-9 * scale:
+        raise InputError(f"{where}.matrix: not a covariance (negative eigenvalue)")
+    index = {str(nm): i for i, nm in enumerate(names)}
+    if not set(sensors) <= set(index):
+        return None  # a sensor added by hand: the joint does not describe it
+    perm = np.concatenate([np.arange(6) + 6 * index[nm] for nm in sensors])
+    J = J[np.ix_(perm, perm)]
+    for i, (nm, sensor) in enumerate(sensors.items()):
+        block = J[6 * i:6 * i + 6, 6 * i:6 * i + 6]
+        if not np.allclose(block, sensor.covariance, rtol=1e-6, atol=1e-12 * scale):
+            return None  # a hand-edited sensor covariance: the joint no longer describes the file
+    return J
 
 
 def read_stored_calibration(path: str | os.PathLike[str]) -> StoredCalibration:

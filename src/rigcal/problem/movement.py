@@ -307,6 +307,20 @@ def finite_or_none(x: float) -> float | None:
     return float(x) if math.isfinite(x) else None
 
 
+def move_test_fields(t: "MoveTest | None") -> dict:
+    """A test's numbers as check.json / diff --json write them (None without a test)."""
+    return {
+        "tested": list(t.tested) if t else [],
+        "statistic": None if t is None else float(t.statistic),
+        "dof": 0 if t is None else int(t.dof),
+        "p_value": None if t is None else float(t.p_value),
+        "alpha": None if t is None else float(t.alpha),
+        "sigma": None if t is None else float(t.sigma),
+        "detectable_translation_m": None if t is None else finite_or_none(t.detectable_translation_m),
+        "detectable_rotation_deg": None if t is None else finite_or_none(t.detectable_rotation_deg),
+    }
+
+
 def format_vector(v, scale: float = 1.0, decimals: int = 0) -> str:
     return "(" + ", ".join(f"{x * scale:+.{decimals}f}" for x in np.asarray(v, dtype=float)) + ")"
 
@@ -322,6 +336,7 @@ __all__ = [
     "format_mm",
     "format_p",
     "format_vector",
+    "move_test_fields",
     "move_test",
     "noncentral_chi2_sf",
     "determined_basis",

@@ -29,8 +29,15 @@ def test_clean_rig_is_consistent(sim, mode):
     assert r.verdict.status == "consistent", r.verdict.failed
     assert not r.flagged
     names = [c.name for c in r.verdict.checks]
-    assert names[:4] == ["pairs", "boards", "noise", "rank"]
-    assert "bounded" in names  # the 2D radar's z, roll, pitch
+    assert names[:4] == ["inputs", "pairs", "boards", "noise"]
+    assert names.index("rank") < names.index("determined") < names.index("bounded")  # z, roll, pitch
+    assert {"scale", "reflector", "spacing"} <= set(names)
+    # the evidence: every pair's statistic and threshold, the noise model per sensor and axis
+    pairs = next(c for c in r.verdict.checks if c.name == "pairs")
+    assert {e.item for e in pairs.evidence} == {"lidar1-camera1", "lidar1-radar1", "camera1-radar1"}
+    assert all(e.statistic <= e.threshold for e in pairs.evidence)
+    assert set(r.verdict.noise["camera1"]) == {"lateral", "depth"}
+    assert r.verdict.to_dict()["noise"]["radar1"]["range"]["high"] >= r.verdict.noise["radar1"]["range"]["estimate"]
 
 
 def test_a_wrong_pose_is_flagged(sim):
@@ -60,11 +67,14 @@ def test_a_bad_board_kept_is_flagged_and_named(sim):
     assert r.outliers and not r.flagged
 
 
-def test_rank_deficiency_fails_and_bounds_are_notes():
+def test_rank_deficiency_is_undetermined_and_bounds_are_notes():
     v = verdict(Check("pairs", PASS, ""), Check("boards", PASS, ""), True, {"radar1": {"z": (-0.1, 0.2)}}, {})
-    assert v.status == "flagged" and [c.name for c in v.failed] == ["rank"]
+    assert v.status == "undetermined" and not v.failed and [c.name for c in v.undetermined] == ["rank"]
     assert any(c.status == NOTE and c.name == "bounded" for c in v.checks)
-    assert v.to_dict()["status"] == "flagged"
+    assert v.to_dict()["status"] == "undetermined"
+    # a failed check takes precedence
+    v = verdict(Check("pairs", FAIL, ""), Check("boards", PASS, ""), True, {}, {})
+    assert v.status == "flagged"
 
 
 @pytest.mark.parametrize("mode", ["mcpe", "fcpe", "pse"])

@@ -6,8 +6,8 @@ manifests are read here, the calibrations run as tasks (workers only compute: th
 file), and each result is written here to ``OUT/<DIR's name>/`` exactly as ``rigcal calibrate
 DIR --out OUT/<name>`` writes it (atomically; a flagged result only with ``--force``). A
 dataset that cannot be read or calibrated is reported and skipped; a summary table ends the
-run. Exit code: 0 all written and consistent; 3 some flagged; 4 some failed (the rest written);
-1 none calibrated.
+run. Exit code: 0 all written and consistent; 3 some flagged; 5 some undetermined (none
+flagged); 4 some failed (the rest written); 1 none calibrated.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ import sys
 from pathlib import Path
 from typing import NamedTuple
 
-from rigcal.cli.codes import EXIT_FLAGGED, EXIT_PARTIAL
+from rigcal.cli.codes import EXIT_FLAGGED, EXIT_PARTIAL, EXIT_UNDETERMINED
 from rigcal.errors import InputError, RigcalError
 
 
@@ -52,7 +52,7 @@ def _names(dirs) -> list[str]:
 def run_batch(args, console) -> int:
     import json
 
-    from rigcal.cli.calibrate import options_from
+    from rigcal.cli.calibrate import exit_code, options_from
     from rigcal.cli.output import progress_bar, table
     from rigcal.io.atomic import staged_folder
     from rigcal.io.dataset.manifest import load_manifest
@@ -86,8 +86,10 @@ def run_batch(args, console) -> int:
         if o.result is None:
             status[name] = "failed"
             continue
-        if o.result.flagged and not args.force:
-            status[name] = "flagged, not written"
+        code = exit_code(o.result)
+        word = "flagged" if code == EXIT_FLAGGED else "undetermined"
+        if code and not args.force:
+            status[name] = f"{word}, not written"
             continue
         try:
             with staged_folder(out / name) as stage:
@@ -96,7 +98,7 @@ def run_batch(args, console) -> int:
             outcomes[name] = Outcome(name, None, str(exc))
             status[name] = "failed"
             continue
-        status[name] = "flagged, written (--force)" if o.result.flagged else "written"
+        status[name] = f"{word}, written (--force)" if code else "written"
     t = table(f"calibrate --batch: {len(names)} datasets, mode {args.mode}",
               ("dataset", "status", "RMSE per pair (mm) / error"))
     for name in names:
@@ -112,10 +114,13 @@ def run_batch(args, console) -> int:
         sys.stdout.write(json.dumps(doc, indent=1) + "\n")
     failed = [n for n in names if status[n] == "failed"]
     flagged = [n for n in names if status[n].startswith("flagged")]
-    console.print(f"{len(names) - len(failed) - len(flagged)} consistent, {len(flagged)} flagged, "
-                  f"{len(failed)} failed; results in {out}/<dataset>/")
+    undetermined = [n for n in names if status[n].startswith("undetermined")]
+    console.print(f"{len(names) - len(failed) - len(flagged) - len(undetermined)} consistent, {len(flagged)} "
+                  f"flagged, {len(undetermined)} undetermined, {len(failed)} failed; results in {out}/<dataset>/")
     if len(failed) == len(names):
         return 1
     if flagged:
         return EXIT_FLAGGED
+    if undetermined:
+        return EXIT_UNDETERMINED
     return EXIT_PARTIAL if failed else 0

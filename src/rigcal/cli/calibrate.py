@@ -17,9 +17,11 @@ EPILOG = """examples:
 writes calibration.yaml, <sensor>.yaml, calibration.launch and report.html (open it in a
 browser: verdict, poses, residuals, 3D detections, coverage; works offline)
 
-exit codes: 0 consistent result written; 1 error; 2 usage; 3 the result contradicts its own
-noise model (nothing written unless --force); with --batch: 4 some datasets failed (the others
-are written), 3 some were flagged, 1 all failed
+exit codes: 0 consistent result written; 1 error; 2 usage; 3 flagged: the result contradicts
+its own noise model, or a named mistake in the input (nothing written unless --force); 5
+undetermined: a sensor's pose not determined to its kind's bound (--max-std; nothing written
+unless --force); with --batch: 4 some datasets failed (the others are written), 3 some were
+flagged, 5 some undetermined, 1 all failed
 """
 
 #: --scheduler's help (:mod:`rigcal.study.scale`; not imported by the parser)
@@ -78,7 +80,14 @@ def add_parser(sub) -> None:
     )
     c.add_argument(
         "--force", action="store_true",
-        help="write the result even when the consistency check flags it (exit code stays 3)",
+        help="write the result even when the consistency check flags it or a pose is undetermined "
+        "(the exit code stays 3 / 5)",
+    )
+    c.add_argument(
+        "--max-std", action="append", default=[], metavar="[KIND:]MM/DEG",
+        help="largest std of a determined pose, per sensor kind or for all (repeatable; default "
+        "50/1 for lidar, camera and radar3d, 100/2 for a 2D radar's in-plane pose), e.g. "
+        "--max-std radar:150/3",
     )
     c.set_defaults(func=run)
 
@@ -88,8 +97,15 @@ def options_from(args):
     from rigcal.io.results.calibration_files import read_initial_poses
     from rigcal.problem.calibrate import CalibrationOptions
 
+    from rigcal.problem.determined import DETERMINED_BOUND, parse_bound
+
+    bounds: dict[str, tuple[float, float]] = {}
+    for text in getattr(args, "max_std", None) or []:
+        kind, bound = parse_bound(text)
+        bounds.update({k: bound for k in DETERMINED_BOUND} if kind is None else {kind: bound})
     return CalibrationOptions(
         mode=args.mode,
+        max_std=bounds or None,
         reference=args.reference,
         detect_outliers=not args.keep_outliers,
         hold_radar_plane=args.hold_radar_plane,
@@ -108,7 +124,7 @@ def run(args, console) -> int:
         from rigcal.errors import InputError
 
         raise InputError("--scheduler applies to --batch only (one dataset is calibrated in this process)")
-    from rigcal.cli.codes import EXIT_FLAGGED
+    from rigcal.cli.codes import EXIT_FLAGGED, EXIT_UNDETERMINED
     from rigcal.cli.detect import detect_recording
     from rigcal.cli.output import not_written, summary
     from rigcal.errors import InputError
@@ -139,9 +155,10 @@ def run(args, console) -> int:
     if args.ignore:
         dataset = dataset.with_excluded(read_ignore_file(args.ignore, dataset))
     result = calibrate(dataset, options_from(args))
-    if result.flagged and not args.force:
+    code = exit_code(result)
+    if code and not args.force:
         summary(result, console)
-        return not_written(console)
+        return not_written(console, code=code)
     # raw data: the lidar scans on the camera images, for the report
     raw = raw_images(args.manifest, args.rig, detection, result) if detection is not None else None
     with staged_folder(args.out) as stage:
@@ -153,8 +170,19 @@ def run(args, console) -> int:
     if args.json:
         sys.stdout.write(result_to_json_text(result) + "\n")
     summary(result, console)
-    console.print(f"results written to {args.out}/" + (" (FLAGGED, written with --force)" if result.flagged else ""))
-    return EXIT_FLAGGED if result.flagged else 0
+    forced = {EXIT_FLAGGED: " (FLAGGED, written with --force)", EXIT_UNDETERMINED: " (UNDETERMINED, written with --force)"}
+    console.print(f"results written to {args.out}/" + forced.get(code, ""))
+    return code
+
+
+def exit_code(result) -> int:
+    """0, or the exit code of a flagged (3, first) or undetermined (5) result."""
+    from rigcal.cli.codes import EXIT_FLAGGED, EXIT_UNDETERMINED
+
+    if result.flagged:
+        return EXIT_FLAGGED
+    v = getattr(result, "verdict", None)
+    return EXIT_UNDETERMINED if v is not None and v.status == "undetermined" else 0
 
 
 def raw_images(recording_path: str, rig_path: str, detection, result) -> list:

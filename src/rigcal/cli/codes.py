@@ -1,7 +1,8 @@
 """Exit codes of the ``rigcal`` command (light: imported before any command runs).
 
 0 calibrated and consistent; 1 error (bad input, or the data cannot determine the result);
-2 command-line usage; 3 flagged; 4 partial; 130 interrupted (Ctrl-C); 143 terminated (SIGTERM).
+2 command-line usage; 3 flagged; 4 partial; 5 undetermined; 130 interrupted (Ctrl-C); 143
+terminated (SIGTERM).
 """
 
 from __future__ import annotations
@@ -10,6 +11,8 @@ from __future__ import annotations
 EXIT_FLAGGED = 3
 #: exit code of a partial result: some sensors calibrated (and written), others not (rigcal mocap)
 EXIT_PARTIAL = 4
+#: exit code of a result with a sensor whose pose the data do not determine to its kind's bound
+EXIT_UNDETERMINED = 5
 EXIT_INTERRUPTED = 130  # Ctrl-C (128 + SIGINT)
 EXIT_TERMINATED = 143  # SIGTERM (128 + SIGTERM)
 
@@ -18,8 +21,13 @@ EXIT_CODES_HELP = f"""exit codes:
   0    calibrated (or written) and consistent
   1    error: bad input, or the data cannot determine the result (one line on stderr)
   2    command-line usage
-  {EXIT_FLAGGED}    flagged: the result contradicts its own noise model (nothing written unless --force)
+  {EXIT_FLAGGED}    flagged: the result contradicts its own noise model, or a mistake in the input was
+       found (named: hole order, units, scale, board geometry, swapped files); nothing
+       written unless --force
   {EXIT_PARTIAL}    partial (rigcal mocap): the other sensors calibrated and written, some not
+  {EXIT_UNDETERMINED}    undetermined: a sensor's pose is not determined to its kind's bound (--max-std);
+       the message names it, its weak directions and the placements that would fix
+       them (nothing written unless --force); 3 takes precedence
   {EXIT_INTERRUPTED}  interrupted (Ctrl-C); nothing half-written is left
   {EXIT_TERMINATED}  terminated (SIGTERM); nothing half-written is left
 """

@@ -12,8 +12,17 @@ from typing import Mapping
 import numpy as np
 
 from rigcal.dataset import Dataset, SensorKind
-from rigcal.errors import ConfigError, ConvergenceError, RigcalError
-from rigcal.problem.consistency import NOTE, Check, noise_check, pair_checks, verdict
+from rigcal.errors import ConfigError, ConvergenceError, InputError, RigcalError
+from rigcal.problem.consistency import (
+    FAIL,
+    NOTE,
+    Check,
+    noise_check,
+    noise_summary,
+    pair_checks,
+    pair_residuals,
+    verdict,
+)
 from rigcal.geometry.se3 import adjoint, invert, se3_exp, se3_log
 from rigcal.problem.configurations import (
     MODES,
@@ -25,10 +34,12 @@ from rigcal.problem.configurations import (
     initial_board_poses,
     pairs_for_mode,
 )
+from rigcal.problem.determined import determined_check
 from rigcal.problem.evaluate import anchor_errors, evaluate_pairs
 from rigcal.problem.fixedpoint import Anderson
 from rigcal.problem.globalise import solve_global
 from rigcal.problem.initialise import default_reference, initial_poses
+from rigcal.problem.mistakes import input_checks, named_checks
 from rigcal.problem.observability import check_observable
 from rigcal.problem.outliers import OutlierRule, find_outliers
 from rigcal.problem.pairs import all_pairs, pair_data
@@ -103,6 +114,9 @@ class CalibrationOptions:
     #: PSE noise: ``iterated`` (per-sensor, per-axis, re-estimated until converged) or
     #: ``identity`` (1 for every axis of every sensor: the original tool's fixed-noise PSE)
     pse_noise: str = "iterated"
+    #: largest std [m, deg] of a determined pose per sensor kind (``{"radar": (0.1, 2.0)}``);
+    #: kinds not given keep :data:`rigcal.problem.determined.DETERMINED_BOUND`
+    max_std: Mapping[str, tuple[float, float]] | None = None
 
 
 @dataclass(frozen=True, eq=False)  # holds arrays: compare by identity
@@ -594,14 +608,22 @@ def calibrate(dataset: Dataset, options: CalibrationOptions = CalibrationOptions
     reference = _check(dataset, options)
     mode = options.mode.lower()
     ignored = {s.name: tuple(sorted(s.excluded)) for s in dataset.sensors if s.excluded}
-    with single_threaded():
-        fit, work, outliers = _fit_screened(dataset, mode, reference, options)
-        rmse, per_board = evaluate_pairs(work, fit.poses)
-        cv = (
-            _cross_validation(work, mode, reference, fit.poses, options)
-            if options.cross_validation_folds
-            else {}
-        )
+    # cheap checks of the detections first: a mistake found there is named even when the
+    # solve then fails on it
+    inputs = input_checks(dataset, options.initial)
+    try:
+        with single_threaded():
+            fit, work, outliers = _fit_screened(dataset, mode, reference, options)
+            rmse, per_board = evaluate_pairs(work, fit.poses)
+            cv = (
+                _cross_validation(work, mode, reference, fit.poses, options)
+                if options.cross_validation_folds
+                else {}
+            )
+    except RigcalError as exc:
+        if inputs.status == FAIL:
+            raise InputError(f"{inputs.detail} (the calibration then failed: {exc})") from None
+        raise
     units = detection_units(work)
     if "radar_reference" in fit.solution.extra:
         sol, bounded, theta = fit.solution, {}, _theta_all_pairs(work, fit.poses, reference, units)
@@ -614,13 +636,9 @@ def calibrate(dataset: Dataset, options: CalibrationOptions = CalibrationOptions
         for name, std in stds.items() if name != reference
     }
     warnings = _warnings(work, mode, reference, fit, options, weak, bounded)
-    pair_check, board_check, _ = pair_checks(
-        work, fit.poses, reference, units, theta, sol.joint_covariance, options.outlier_rule
-    )
     noise_model = theta_by_sensor(units, theta)
-    result_verdict = verdict(
-        pair_check, board_check, sol.rank_deficient, bounded, weak, noise_check(work, noise_model)
-    )
+    result_verdict = _verdict(dataset, work, fit, units, sol, outliers, options, reference, stds, bounded, weak,
+                              inputs)
     if "radar_reference" in sol.extra:
         intervals = sol.extra["radar_reference"]
         iv = ", ".join(f"{d} {lo:+.3g}..{hi:+.3g} {'m' if d == 'z' else 'deg'}" for d, (lo, hi) in intervals.items())
@@ -673,6 +691,34 @@ def calibrate(dataset: Dataset, options: CalibrationOptions = CalibrationOptions
         relative=_relative(work, fit, units, reference),
         noise_model=noise_model,
         verdict=result_verdict,
+    )
+
+
+def _verdict(dataset: Dataset, work: Dataset, fit: _Fit, units: DetectionUnits, sol: Solution, outliers,
+             options: CalibrationOptions, reference: str, stds, bounded, weak, inputs: Check):
+    """The result's verdict (:mod:`rigcal.problem.consistency`): the input checks, every pair
+    and board against the noise the residuals support, the named mistakes
+    (:mod:`rigcal.problem.mistakes`) and whether every pose is determined
+    (:mod:`rigcal.problem.determined`)."""
+    residuals = pair_residuals(work, fit.poses, reference, units, sol.joint_covariance)
+    pair_check, board_check, _ = pair_checks(
+        work, fit.poses, reference, units, None, sol.joint_covariance, options.outlier_rule, residuals
+    )
+    verdict_noise = noise_summary(units, residuals.region) if residuals is not None else {}
+    radar_reference = "radar_reference" in sol.extra
+    held = {s.name: RADAR_PLANE_HELD for s in dataset.sensors
+            if options.hold_radar_plane and s.kind == SensorKind.RADAR}
+    determined = determined_check(
+        dataset, stds, {s.name: sol.pose_covariance(s.name) for s in dataset.sensors}, reference,
+        options.max_std, radar_reference, held,
+    )
+    undetermined = {e.item.split(" ")[0] for e in determined.evidence if not e.statistic <= e.threshold}
+    weak = {k: v for k, v in weak.items() if k not in undetermined}
+    kept = {} if options.detect_outliers else find_outliers(work, fit.poses, options.outlier_rule)
+    named = named_checks(residuals, dataset, outliers, kept, sorted(undetermined))
+    return verdict(
+        pair_check, board_check, sol.rank_deficient, bounded, weak, noise_check(work, verdict_noise),
+        inputs=inputs, named=named, determined=determined, noise_model=verdict_noise,
     )
 
 

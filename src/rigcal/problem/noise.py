@@ -312,6 +312,111 @@ def sandwich(
     return Ainv, 0.5 * (C + C.T)
 
 
+#: an estimated noise direction whose relative standard error is above this is *weak*: the
+#: data do not tell it (e.g. how a pair's noise splits between its two sensors)
+WEAK_RELATIVE_SE = 0.5
+#: width of the confidence band of the identified directions, in standard errors
+NOISE_BAND_Z = 2.0
+#: the squared residuals of pairs that share a detection are correlated: the information of
+#: the noise regression is divided by this (its standard errors widened by its square root)
+NOISE_INFO_DEFLATION = 2.0
+
+
+@dataclass(frozen=True, eq=False)  # holds arrays: compare by identity
+class NoiseRegion:
+    """The group variances the residuals support: the estimate ``theta`` and, for any linear
+    function ``c . theta`` (a pair's predicted sum of squares, a test statistic's variance),
+    the largest and smallest value the data allow (:meth:`upper`, :meth:`lower`).
+
+    The regression of squared residuals on the groups (:func:`estimate_theta`) has Fisher
+    information ``F = M' diag(1 / (2 pred^2)) M``. In relative units (each group scaled by its
+    estimate) its eigenvectors are the directions the data determine (eigenvalue ``lam``:
+    relative standard error ``1 / sqrt(lam)``) and the *weak* ones (relative standard error
+    above :data:`WEAK_RELATIVE_SE`) - typically how the noise of a pair splits between its two
+    sensors when no third sensor closes a loop. A determined direction moves within
+    :data:`NOISE_BAND_Z` standard errors; a weak one as far as every group stays non-negative
+    (so a sensor may carry all of a pair's noise, never more). Never a value at the floor
+    that only the arithmetic chose.
+    """
+
+    theta: np.ndarray
+    scale: np.ndarray  # (groups,) relative units
+    values: np.ndarray  # eigenvalues of the scaled information (determined directions)
+    vectors: np.ndarray  # (groups, d) their eigenvectors
+    weak: np.ndarray  # (groups, w) weak eigenvectors
+    weak_range: np.ndarray  # (w, 2) how far (t_lo <= 0 <= t_hi) each may move theta + t s*v
+
+    def _parts(self, c: np.ndarray) -> tuple[float, float, float, float]:
+        c = np.asarray(c, dtype=float)
+        cs = c * self.scale
+        band = NOISE_BAND_Z * float(np.sqrt(np.sum((self.vectors.T @ cs) ** 2 / self.values))) if self.values.size else 0.0
+        proj = self.weak.T @ cs if self.weak.size else np.zeros(0)
+        lo_t, hi_t = (self.weak_range[:, 0], self.weak_range[:, 1]) if proj.size else (np.zeros(0), np.zeros(0))
+        up = float(np.sum(np.maximum(np.maximum(hi_t * proj, lo_t * proj), 0.0)))
+        down = float(np.sum(np.maximum(np.maximum(-hi_t * proj, -lo_t * proj), 0.0)))
+        return float(c @ self.theta), band, up, down
+
+    def upper(self, c: np.ndarray, weak: bool = True) -> float:
+        """The largest ``c . theta`` the data support (``c >= 0``); ``weak=False``: within the
+        band of the determined directions only (for ``c`` the data fit directly, e.g. a pair's
+        own sum of squares, which no weak split changes much)."""
+        mid, band, up, _ = self._parts(c)
+        return mid + band + (up if weak else 0.0)
+
+    def lower(self, c: np.ndarray) -> float:
+        """The smallest ``c . theta`` the data support (at least 0)."""
+        mid, band, _, down = self._parts(c)
+        return max(mid - band - down, 0.0)
+
+    def group_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """(lower, upper) variance of every group."""
+        eye = np.eye(self.theta.size)
+        return (np.array([self.lower(e) for e in eye]), np.array([self.upper(e) for e in eye]))
+
+
+def noise_region(M: np.ndarray, theta: np.ndarray, floor: float = THETA_FLOOR) -> NoiseRegion:
+    """The :class:`NoiseRegion` of the estimate ``theta`` from the group design ``M``
+    (rows x groups; :func:`group_design`). Groups no row depends on stay at their value."""
+    theta = np.asarray(theta, dtype=float)
+    G = theta.size
+    used = np.flatnonzero(np.any(np.asarray(M) > 0, axis=0))
+    empty = np.zeros((G, 0))
+    if used.size == 0:
+        return NoiseRegion(theta, np.ones(G), np.zeros(0), empty, empty, np.zeros((0, 2)))
+    Mu = np.asarray(M)[:, used]
+    th = theta[used]
+    pred = np.maximum(Mu @ th, 1e-30)
+    # relative units: a group at the floor is scaled like the typical group (its estimate
+    # says nothing about its size)
+    typical = float(np.median(th[th > 10 * floor])) if np.any(th > 10 * floor) else 1e-6
+    s = np.maximum(th, 1e-2 * typical)
+    A = Mu * s[None, :] / (np.sqrt(2.0) * pred[:, None])
+    F = (A.T @ A) / NOISE_INFO_DEFLATION
+    lam, V = np.linalg.eigh(0.5 * (F + F.T))
+    strong = lam > 1.0 / WEAK_RELATIVE_SE**2
+    scale = np.ones(G)
+    scale[used] = s
+    vectors = np.zeros((G, int(np.sum(strong))))
+    vectors[used] = V[:, strong]
+    weak = np.zeros((G, int(np.sum(~strong))))
+    weak[used] = V[:, ~strong]
+    ranges = []
+    for v in V[:, ~strong].T:
+        # theta + t s v >= 0 for every group: t between these
+        lo, hi = -np.inf, np.inf
+        for j in range(v.size):
+            step = s[j] * v[j]
+            if step > 1e-12 * s[j]:
+                lo = max(lo, -th[j] / step)
+            elif step < -1e-12 * s[j]:
+                hi = min(hi, th[j] / -step)
+        # a direction that only adds noise everywhere is bounded by the data, not by zero
+        # (it cannot be weak in practice): cap it at 10 relative units
+        ranges.append((lo if np.isfinite(lo) else -10.0, hi if np.isfinite(hi) else 10.0))
+    weak_range = np.array(ranges, dtype=float).reshape(-1, 2)
+    return NoiseRegion(theta, scale, lam[strong], vectors, weak, weak_range)
+
+
 def row_batches(problem) -> np.ndarray:
     """The observation batch (a pair, or a sensor in PSE) of every residual row of
     ``problem``, in the solver's row order (``estimate_theta``'s ``batches``)."""
@@ -324,7 +429,9 @@ __all__ = [
     "COMPONENTS",
     "COMPONENT_UNITS",
     "DetectionUnits",
+    "NoiseRegion",
     "detection_units",
+    "noise_region",
     "estimate_theta",
     "group_design",
     "noise_map",

@@ -24,7 +24,11 @@ Fields of a sensor:
 * ``frame_id``: defaults to the accumulator entries' ``frame_id`` for accumulator input, else
   to ``name``;
 * ``elevation_fov_deg``: the largest |elevation| a radar sees, in degrees (a half-angle, like the
-  original tool's ``max_elevation``); in (0, 90]; default 9.
+  original tool's ``max_elevation``); in (0, 90]; default 9;
+* ``hole_order`` (lidar / camera): which hole each of a board's four columns holds, as seen from
+  the sensor - a list of ``TL, TR, BL, BR`` in file order, or ``mirrored`` for
+  ``[TR, TL, BR, BL]``; default the documented ``[TL, TR, BL, BR]``. The columns are reordered
+  on reading (``rigcal calibrate`` names a mirrored order it finds in a file without the key).
 
 The ignore file's boards are excluded with :meth:`Dataset.with_excluded` by :func:`load_manifest`
 and :func:`parse_manifest`; the ``*_with_ignored`` variants return the dataset without them plus
@@ -69,7 +73,9 @@ from rigcal.io.limits import path_stat
 MANIFEST_NAME = "rig.yaml"
 
 _TOP_KEYS = ("sensors", "reference", "board", "ignore")
-_SENSOR_KEYS = ("name", "kind", "detections", "frame_id", "elevation_fov_deg", "topic")
+_SENSOR_KEYS = ("name", "kind", "detections", "frame_id", "elevation_fov_deg", "topic", "hole_order")
+#: the documented hole order of a board's four columns (as seen from the sensor)
+HOLE_ORDER = ("TL", "TR", "BL", "BR")
 _BOARD_KEYS = tuple(f.name for f in fields(BoardGeometry))
 _CSV_SUFFIXES = (".csv",)
 _YAML_SUFFIXES = (".yaml", ".yml")
@@ -87,6 +93,7 @@ class _SensorEntry:
     frame_id: str | None
     elevation_fov_deg: float | None
     topic: str | None
+    hole_order: tuple[int, ...] | None = None  # column i holds documented hole hole_order[i]
 
 
 @dataclass(frozen=True)
@@ -164,7 +171,24 @@ def _parse_sensor(i: int, raw: Any, source: str) -> _SensorEntry:
                 f"(the largest |elevation| the radar sees), got {elevation!r}"
             )
         elevation = float(elevation)
-    return _SensorEntry(i, name, kind, detections, frame_id, elevation, topic)
+    hole_order = _parse_hole_order(raw["hole_order"], kind, f"{where}.hole_order") if "hole_order" in raw else None
+    return _SensorEntry(i, name, kind, detections, frame_id, elevation, topic, hole_order)
+
+
+def _parse_hole_order(raw: Any, kind: SensorKind, where: str) -> tuple[int, ...]:
+    """``mirrored`` or a list of TL, TR, BL, BR in file order -> the documented hole of each
+    column."""
+    if not kind.is_point_cloud:
+        raise InputError(f"{where}: only lidar and camera detections have a hole order, not {kind.value}")
+    if isinstance(raw, str) and raw.strip().lower() == "mirrored":
+        raw = ["TR", "TL", "BR", "BL"]
+    if (not isinstance(raw, list) or len(raw) != 4 or not all(isinstance(h, str) for h in raw)
+            or sorted(h.strip().upper() for h in raw) != sorted(HOLE_ORDER)):
+        raise InputError(
+            f"{where}: expected 'mirrored' or the four holes TL, TR, BL, BR in the file's column order "
+            f"(e.g. [TR, TL, BR, BL]), got {raw!r}"
+        )
+    return tuple(HOLE_ORDER.index(h.strip().upper()) for h in raw)
 
 
 def parse_board(raw: Any, source: str) -> BoardGeometry:
@@ -275,6 +299,8 @@ def _load_sensor(
             frame_id = frame_id or file_frame
     except InputError as exc:
         raise InputError(f"{where}: {exc}") from None
+    if entry.hole_order is not None:
+        points = np.array(points)[:, np.argsort(entry.hole_order)]  # back to TL, TR, BL, BR
     elevation = entry.elevation_fov_deg
     return SensorDetections(
         name=entry.name,

@@ -212,8 +212,10 @@ def pair_residuals(
     batches = row_batches(problem)
     m, n = J.shape
     if theta is None:
-        # the poses absorbed up to n of the m residual degrees of freedom
-        theta = estimate_theta(r, M, m / max(m - n, 1), batches=batches)
+        # the poses absorbed up to n of the m residual degrees of freedom; one round (each
+        # row weighted by its pair's mean square): further rounds let a weak split wander (3
+        # lidars with random yaw: two lidars' y noise went to the floor, a third's doubled)
+        theta = estimate_theta(r, M, m / max(m - n, 1), batches=batches, rounds=1)
     row_board = np.concatenate([np.repeat(b.board, b.dim) for b in problem.observations])
     return PairResiduals(dataset, poses, reference, units, problem, layout, r, J, D, M, batches, row_board,
                          pose_var, np.asarray(theta, dtype=float), noise_region(M, theta))
@@ -246,7 +248,7 @@ def pair_checks(
     z2_deleted = np.empty_like(z2)
     for k in np.unique(res.row_board):
         out = res.row_board == k
-        theta_k = estimate_theta(r[~out], M[~out], m / max(m - n, 1), batches=res.batches[~out])
+        theta_k = estimate_theta(r[~out], M[~out], m / max(m - n, 1), batches=res.batches[~out], rounds=1)
         z2_deleted[out] = r[out] ** 2 / np.maximum(M[out] @ theta_k + pose_var[out], 1e-30)
     ratios: dict[str, float] = {}
     evidence: list[Evidence] = []

@@ -249,11 +249,14 @@ def estimate_theta(
     dof_factor: float,
     floor: float = THETA_FLOOR,
     batches: np.ndarray | None = None,
+    rounds: int = 3,
 ) -> np.ndarray:
     """Group variances from squared metric residuals: ``r_i^2 * dof_factor ~ M theta``.
 
     Non-negative least squares, each row weighted by the inverse square of its predicted
-    variance (``Var(r^2) = 2 E[r^2]^2``), three rounds. The prediction is clamped from below at a
+    variance (``Var(r^2) = 2 E[r^2]^2``), ``rounds`` rounds (1: each row weighted by its
+    batch's mean square alone - the most stable where the data leave splits weak, which
+    later rounds let wander). The prediction is clamped from below at a
     tenth of the mean square of the row's batch (``batches[i]``: a pair or sensor; default one
     batch): a group the first rounds set to zero cannot make its rows' weights explode, and a
     precise pair (lidar-lidar) weighs as much as a noisy one (camera-radar) from the start.
@@ -270,7 +273,7 @@ def estimate_theta(
     Mu = M[:, used]
     pred = np.maximum(level[b], 1e-30)  # first round: each batch at its own scale
     th = np.zeros(Mu.shape[1])
-    for _ in range(3):
+    for _ in range(max(int(rounds), 1)):
         sw = 1.0 / np.maximum(pred, low)
         A = Mu * sw[:, None]
         col = np.maximum(np.sqrt(np.sum(A**2, axis=0)), 1e-300)

@@ -34,7 +34,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from rigcal.dataset import BoardGeometry, Dataset, SensorKind
-from rigcal.errors import RigcalError
+from rigcal.errors import InputError, RigcalError
 from rigcal.geometry.se3 import from_rt, invert, se3_exp
 from rigcal.sim.rig import SimResult, SimSensor, make_rig_placements, random_rig, simulate
 
@@ -121,8 +121,19 @@ def _simulate(sensors, T_rig_board, board, rng, extra_noise) -> SimResult:
 
 
 def draw_rig(seed: int, index: int, num_boards: int | None = None) -> PopulationRig:
-    """Rig ``index`` of the population of ``seed`` (see the module docstring)."""
-    rng = np.random.default_rng([seed, index])
+    """Rig ``index`` of the population of ``seed`` (see the module docstring); a draw whose
+    sensors or boards cannot be placed (a mounting that sees too little of the board area) is
+    drawn again from ``(seed, index, attempt)``."""
+    for attempt in range(20):
+        try:
+            return _draw(np.random.default_rng([seed, index] + ([attempt] if attempt else [])), seed, index,
+                         num_boards)
+        except InputError:
+            continue
+    raise InputError(f"draw_rig: no rig drawn for seed {seed}, index {index} in 20 attempts")
+
+
+def _draw(rng: np.random.Generator, seed: int, index: int, num_boards: int | None) -> PopulationRig:
     counts = dict(n_lidar=int(rng.integers(1, 4)), n_camera=int(rng.integers(1, 4)),
                   n_radar=int(rng.integers(0, 3)), n_radar3d=int(rng.integers(0, 2)))
     K = int(rng.integers(6, 30)) if num_boards is None else int(num_boards)

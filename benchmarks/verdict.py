@@ -72,14 +72,14 @@ def main() -> int:
     if s["faults"]:
         print("\nfaults (rigs with >= 10 boards): caught (flagged / refused / undetermined; a board from "
               "another placement: excluded or flagged) and named, of the rigs that can carry the fault")
-        print(f"{'fault':12} " + " ".join(f"{m:>20}" for m in modes))
+        print(f"{'fault':24} " + " ".join(f"{m:>20}" for m in modes))
         for fault, rows in s["faults"].items():
             cells = []
             for m in modes:
                 v = rows.get(m)
                 cells.append(f"{v['caught']}/{v['rigs']} ({100 * v['caught'] / v['rigs']:.0f}%) n{v['named']}"
                              if v else "-")
-            print(f"{fault:12} " + " ".join(f"{c:>20}" for c in cells))
+            print(f"{fault:24} " + " ".join(f"{c:>20}" for c in cells))
     print(f"\n{len(runs)} calibrations, {time.perf_counter() - t0:.0f} s")
     if args.json:
         with open(args.json, "w", encoding="utf-8") as f:

@@ -72,3 +72,50 @@ def test_parse_bound():
         parse_bound("50mm")
     with pytest.raises(InputError, match="must be positive"):
         parse_bound("0/1")
+
+
+@pytest.fixture(scope="module")
+def prius():
+    from rigcal.sim.rig import make_rig_placements, prius_like_rig
+
+    rng = np.random.default_rng(3)
+    sensors = prius_like_rig()
+    return sensors, make_rig_placements(rng, sensors, 29, min_fraction=1.0)
+
+
+def _undetermined_or_refused(dataset, mode):
+    """The detail of the ``determined`` check, or the message of the refusal (a joint solve
+    that does not converge on such data names the radar's least determined direction)."""
+    from rigcal.errors import ConvergenceError
+    from rigcal.problem.calibrate import CalibrationOptions, calibrate
+
+    try:
+        r = calibrate(dataset, CalibrationOptions(mode=mode))
+    except ConvergenceError as exc:
+        return "refused", str(exc)
+    return r.verdict.status, next(c for c in r.verdict.checks if c.name == "determined").detail
+
+
+@pytest.mark.parametrize("mode", ["mcpe", "fcpe", "pse"])
+def test_boards_on_one_ray_leave_the_radar_undetermined(prius, mode):
+    from rigcal.sim.rig import board_area_center, make_board_placements, simulate
+
+    sensors, _ = prius
+    rng = np.random.default_rng(4)
+    ray = make_board_placements(rng, 29, board_area_center(sensors), distance_m=(3, 9), azimuth_spread_deg=0,
+                                elevation_spread_deg=0.0, heading_deg=10)
+    status, text = _undetermined_or_refused(simulate(sensors, ray, rng=rng).dataset, mode)
+    assert status in ("undetermined", "refused") and "radar1" in text
+    if status == "undetermined":
+        assert text.startswith("radar1: ") and "lie on one ray from it" in text
+        assert "camera1" not in text  # the lidar's centres determine the camera
+
+
+def test_boards_at_one_pose_leave_the_radar_undetermined(prius):
+    from rigcal.sim.rig import simulate
+
+    sensors, T = prius
+    sim = simulate(sensors, np.repeat(T[:1], 29, axis=0), rng=np.random.default_rng(5))
+    status, text = _undetermined_or_refused(sim.dataset, "mcpe")
+    assert status == "undetermined"
+    assert "all 29 boards radar1 saw are at one spot in its view" in text

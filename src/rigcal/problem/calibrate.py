@@ -452,11 +452,12 @@ def _fit_radar_reference(
         cov[6 * j : 6 * j + 6, 6 * j : 6 * j + 6] = Ad @ C_r @ Ad.T
         for v, xi in enumerate(_profile_moves(problems[s], radar, vertices)):
             moves[v, 6 * j : 6 * j + 6] = Ad @ xi
+    gaussian = cov.copy()  # without the moves the radar's tilt allows: what "determined" judges
     if len(vertices):
         cov += moves.T @ moves / len(vertices) / 3.0
     sol = combine_solutions(
         list(sols.values()), poses=poses, covariance=cov, columns=_radar_reference_columns(radar, names),
-        status="every pair converged", extra={"radar_reference": intervals},
+        status="every pair converged", extra={"radar_reference": intervals, "gaussian_covariance": gaussian},
     )
     return _Fit(poses, _merged_radar_problem(dataset, radar, poses, problems), sol, {}, 0, {})
 
@@ -708,14 +709,25 @@ def _verdict(dataset: Dataset, work: Dataset, fit: _Fit, units: DetectionUnits, 
     radar_reference = "radar_reference" in sol.extra
     held = {s.name: RADAR_PLANE_HELD for s in dataset.sensors
             if options.hold_radar_plane and s.kind == SensorKind.RADAR}
-    determined = determined_check(
-        dataset, stds, {s.name: sol.pose_covariance(s.name) for s in dataset.sensors}, reference,
-        options.max_std, radar_reference, held,
-    )
+    covariances = {s.name: sol.pose_covariance(s.name) for s in dataset.sensors}
+    if radar_reference:
+        # the moves the reference radar's bounded tilt and height allow are bounded, not undetermined
+        gauss = replace(sol, covariance=sol.extra["gaussian_covariance"])
+        covariances = {s.name: gauss.pose_covariance(s.name) for s in dataset.sensors}
+        stds = {n: pose_std(fit.poses[n], c) for n, c in covariances.items()}
+    determined = determined_check(dataset, stds, covariances, reference, options.max_std, radar_reference, held)
     undetermined = {e.item.split(" ")[0] for e in determined.evidence if not e.statistic <= e.threshold}
     weak = {k: v for k, v in weak.items() if k not in undetermined}
     kept = {} if options.detect_outliers else find_outliers(work, fit.poses, options.outlier_rule)
-    named = named_checks(residuals, dataset, outliers, kept, sorted(undetermined))
+    tested = residuals
+    if radar_reference and residuals is not None:
+        # the others' height, roll and pitch relative to the reference radar are held at a
+        # guess (decimetres, degrees off): the extra parameters are estimated at the poses a
+        # local joint fit of every pair gives (their test linearises about a least-squares point)
+        sol_all = solve(build_pairwise(work, fit.poses, reference, all_pairs(work)))
+        if sol_all.converged:
+            tested = pair_residuals(work, dict(sol_all.poses), reference, units, sol.joint_covariance)
+    named = named_checks(tested, dataset, outliers, kept, sorted(undetermined))
     return verdict(
         pair_check, board_check, sol.rank_deficient, bounded, weak, noise_check(work, verdict_noise),
         inputs=inputs, named=named, determined=determined, noise_model=verdict_noise,

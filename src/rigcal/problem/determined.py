@@ -14,8 +14,10 @@ Which directions are judged:
   ``bounded``), or *held*: they are never undetermined. What those bounded directions still
   allow the in-plane pose to do (a tilt the field of view permits moves x, y and yaw: the
   reported covariance includes it) counts, so a 2D radar's bound is wider;
-* MCPE with a 2D radar as reference: every other sensor's x, y and yaw in the radar's frame
-  (the height, roll and pitch relative to the radar are bounded by its field of view);
+* MCPE with a 2D radar as reference: every other sensor's x, y and yaw in the radar's frame,
+  with the radar's z, roll and pitch held (the height, roll and pitch relative to the radar,
+  and what a tilt of the radar does to the others' positions over their lever arm, are bounded
+  by its field of view);
 * held directions (``--hold-radar-plane``) are not judged.
 """
 

@@ -102,7 +102,7 @@ def test_top_help_lists_the_exit_codes(capsys):
     text = capsys.readouterr().out
     assert "exit codes:" in text
     codes = {line.split()[0] for line in text.split("exit codes:")[1].splitlines() if line.strip()}
-    assert codes == {"0", "1", "2", "3", "4", "130", "143"}
+    assert codes == {"0", "1", "2", "3", "4", "5", "130", "143"}
     assert "flagged" in text and "partial" in text
 
 

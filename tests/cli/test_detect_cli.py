@@ -115,10 +115,11 @@ def test_cloud_without_xyz_names_the_topic(tmp_path, capsys):
 
 
 def test_calibrate_with_rig_runs_detection_first(tmp_path, rig, capsys):
-    # two radars cannot be calibrated to each other in 2D, but a 2D and a 3D radar can
+    # two radars cannot be calibrated to each other in 2D, but a 2D and a 3D radar can; four
+    # placements in a zigzag leave the 2D radar's in-plane pose loose: the bound is widened
     bag = _radar_bag(tmp_path / "rec.bag")
     code = run(["calibrate", str(bag), "--rig", str(rig), "--out", str(tmp_path / "cal"), "--no-plot",
-                "--cv-folds", "0", "--reference", "radar2"])
+                "--cv-folds", "0", "--reference", "radar2", "--max-std", "1000/45"])
     out = capsys.readouterr()
     assert code == 0, out.err
     assert "4 board placements found" in out.out and "radar2-radar1" in out.out.replace("radar1-radar2", "radar2-radar1")

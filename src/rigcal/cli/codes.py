@@ -21,13 +21,9 @@ EXIT_CODES_HELP = f"""exit codes:
   0    calibrated (or written) and consistent
   1    error: bad input, or the data cannot determine the result (one line on stderr)
   2    command-line usage
-  {EXIT_FLAGGED}    flagged: the result contradicts its own noise model, or a mistake in the input was
-       found (named: hole order, units, scale, board geometry, swapped files); nothing
-       written unless --force
+  {EXIT_FLAGGED}    flagged: the result contradicts its own noise model, or a named mistake in the input (nothing written unless --force)
   {EXIT_PARTIAL}    partial (rigcal mocap): the other sensors calibrated and written, some not
-  {EXIT_UNDETERMINED}    undetermined: a sensor's pose is not determined to its kind's bound (--max-std);
-       the message names it, its weak directions and the placements that would fix
-       them (nothing written unless --force); 3 takes precedence
+  {EXIT_UNDETERMINED}    undetermined: a sensor's pose not determined to its kind's bound, --max-std (nothing written unless --force)
   {EXIT_INTERRUPTED}  interrupted (Ctrl-C); nothing half-written is left
   {EXIT_TERMINATED}  terminated (SIGTERM); nothing half-written is left
 """

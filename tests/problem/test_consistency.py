@@ -110,7 +110,9 @@ def test_implausible_noise_is_flagged(sim):
     ))
     r = calibrate(scaled, CalibrationOptions(mode="fcpe", detect_outliers=False))
     assert r.flagged
-    assert {c.name for c in r.verdict.failed} & {"noise", "pairs", "boards"}
+    assert {c.name for c in r.verdict.failed} & {"noise", "pairs", "boards", "scale"}
+    scale = next(c for c in r.verdict.checks if c.name == "scale")
+    assert scale.status == FAIL and scale.detail.startswith("camera1: detections 1.30")
 
 
 def _mocap_fit(noise_px: float, within: int):

@@ -16,6 +16,7 @@ from rigcal.errors import ConfigError, ConvergenceError, InputError, RigcalError
 from rigcal.problem.consistency import (
     FAIL,
     NOTE,
+    PLAUSIBLE_NOISE,
     Check,
     noise_check,
     noise_summary,
@@ -727,7 +728,13 @@ def _verdict(dataset: Dataset, work: Dataset, fit: _Fit, units: DetectionUnits, 
         sol_all = solve(build_pairwise(work, fit.poses, reference, all_pairs(work)))
         if sol_all.converged:
             tested = pair_residuals(work, dict(sol_all.poses), reference, units, sol.joint_covariance)
-    named = named_checks(tested, dataset, outliers, kept, sorted(undetermined))
+    # the tests of an extra parameter leave out sensors the boards leave undetermined (a
+    # linearisation about a pose the boards do not fix says nothing) - not those undetermined
+    # because their noise is implausibly large (a mistake in their detections, to be named)
+    noisy = {s for s in undetermined if any(
+        v["estimate"] > PLAUSIBLE_NOISE[dataset.sensor(s).kind.value].get(c, np.inf)
+        for c, v in verdict_noise.get(s, {}).items())}
+    named = named_checks(tested, dataset, outliers, kept, sorted(undetermined - noisy))
     return verdict(
         pair_check, board_check, sol.rank_deficient, bounded, weak, noise_check(work, verdict_noise),
         inputs=inputs, named=named, determined=determined, noise_model=verdict_noise,

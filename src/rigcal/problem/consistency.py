@@ -11,9 +11,10 @@ otherwise any ``undetermined`` makes it undetermined):
   reported pose uncertainty predict for its residuals. The noise model is estimated from every
   pair's residuals at the result's poses (not from the pairs the mode fitted: MCPE's pairs
   with the reference alone leave a sensor's share of the noise to the arithmetic, which put
-  it at the floor), and each pair is judged at the upper end of its determined band
-  (:class:`rigcal.problem.noise.NoiseRegion`). Reduced chi-square above the 1e-4 quantile
-  (Bonferroni over the pairs) and above 3 is a **fail**.
+  it at the floor), each row at the largest variance the data support
+  (:class:`rigcal.problem.noise.NoiseRegion`: a sensor whose share of a pair's noise the data
+  do not tell may carry all of it). Reduced chi-square above the 1e-4 quantile (Bonferroni
+  over the pairs) and above 3 is a **fail**.
 * ``boards``: every (pair, board) the same way, against the noise estimated *without* that
   board (a bad board inflates the estimate it would be judged by), with the quantile corrected
   for the number of boards tested; a board far off its pair's prediction (and more than 3
@@ -48,6 +49,7 @@ from rigcal.problem.noise import (
     DetectionUnits,
     NoiseRegion,
     estimate_theta,
+    estimate_theta_best,
     group_design,
     noise_map,
     noise_region,
@@ -212,10 +214,10 @@ def pair_residuals(
     batches = row_batches(problem)
     m, n = J.shape
     if theta is None:
-        # the poses absorbed up to n of the m residual degrees of freedom; one round (each
-        # row weighted by its pair's mean square): further rounds let a weak split wander (3
-        # lidars with random yaw: two lidars' y noise went to the floor, a third's doubled)
-        theta = estimate_theta(r, M, m / max(m - n, 1), batches=batches, rounds=1)
+        # the poses absorbed up to n of the m residual degrees of freedom; the reweighting
+        # round whose estimate the residuals' likelihood prefers (the rounds can wander along a
+        # weak split: 3 lidars with random yaw, two lidars' y noise at the floor after three)
+        theta = estimate_theta_best(r, M, m / max(m - n, 1), batches=batches)
     row_board = np.concatenate([np.repeat(b.board, b.dim) for b in problem.observations])
     return PairResiduals(dataset, poses, reference, units, problem, layout, r, J, D, M, batches, row_board,
                          pose_var, np.asarray(theta, dtype=float), noise_region(M, theta))
@@ -248,8 +250,11 @@ def pair_checks(
     z2_deleted = np.empty_like(z2)
     for k in np.unique(res.row_board):
         out = res.row_board == k
-        theta_k = estimate_theta(r[~out], M[~out], m / max(m - n, 1), batches=res.batches[~out], rounds=1)
+        theta_k = estimate_theta(r[~out], M[~out], m / max(m - n, 1), batches=res.batches[~out])
         z2_deleted[out] = r[out] ** 2 / np.maximum(M[out] @ theta_k + pose_var[out], 1e-30)
+    # each row at the largest variance the data support (a sensor's weak share of a pair's
+    # noise may be all of it)
+    row_upper = res.region.upper_rows(M)
     ratios: dict[str, float] = {}
     evidence: list[Evidence] = []
     bad_pairs, bad_boards, odd_boards = [], [], []
@@ -261,10 +266,7 @@ def pair_checks(
         # the pair against the largest noise the data support: the noise is estimated from
         # every pair's residuals (a pair the mode did not fit included), so the pair's own sum
         # of squares is fitted directly - how it splits between the sensors does not matter
-        c = np.sum(M[rows], axis=0)
-        mid = float(c @ res.theta)
-        widen = res.region.upper(c, weak=False) / mid if mid > 0 else 1.0
-        z2_pair = r[rows] ** 2 / np.maximum(widen * (M[rows] @ res.theta) + pose_var[rows], 1e-30)
+        z2_pair = r[rows] ** 2 / np.maximum(row_upper[rows] + pose_var[rows], 1e-30)
         ratio = float(np.mean(z2_pair))
         limit = _limit(int(z2_pair.size), len(problem.observations))
         ratios[b.label] = ratio

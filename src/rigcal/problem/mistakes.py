@@ -426,7 +426,7 @@ def _judged_without(res: PairResiduals, rows: np.ndarray, col: np.ndarray, per: 
     """Every board's offset estimate and its std (at the largest noise the data support) with
     the noise estimated and the poses re-fitted without the radar rows of the boards ``leave``;
     each board judged with its own rows added back."""
-    from rigcal.problem.noise import estimate_theta, noise_region
+    from rigcal.problem.noise import estimate_theta_best, noise_region
 
     bad = np.isin(res.row_board, leave) & (col != 0)
     clean = rows & ~bad
@@ -435,7 +435,7 @@ def _judged_without(res: PairResiduals, rows: np.ndarray, col: np.ndarray, per: 
     w = np.where(clean, 1.0 / np.maximum(res.M @ res.theta, 1e-8), 0.0)
     step = np.linalg.lstsq(res.J.T @ (res.J * w[:, None]), -(res.J.T @ (w * res.r)), rcond=1e-12)[0]
     r = res.r + res.J @ step
-    theta = estimate_theta(r[clean], res.M[clean], m / max(m - n, 1), batches=res.batches[clean], rounds=1)
+    theta = estimate_theta_best(r[clean], res.M[clean], m / max(m - n, 1), batches=res.batches[clean])
     judged = replace(res, r=r, theta=theta, region=noise_region(res.M[clean], theta))
     out_b, out_sd = np.zeros(boards.size), np.zeros(boards.size)
     b, _, v = fit_alternatives(judged, per, clean)  # the boards not left out
@@ -510,13 +510,15 @@ def reflector_check(res: PairResiduals, full: Dataset | None = None, skip: Seque
                  f"({beta[0] * 1000:+.1f} +- {sd * 1000:.1f} mm)", evidence)
 
 
-def _point_covariances(res: PairResiduals, s: SensorDetections, pts: np.ndarray) -> np.ndarray:
+def _point_covariances(res: PairResiduals, s: SensorDetections, pts: np.ndarray,
+                       theta_all: np.ndarray | None = None) -> np.ndarray:
     """(n, 3, 3) covariance of detected points ``pts`` (n, 3) of ``s`` under the estimated
-    noise model."""
+    noise model (or the group variances ``theta_all``)."""
     from rigcal.problem.noise import _point_units
 
     comps, dirs, scales = _point_units(s.kind, pts)
-    theta = {c: res.theta[res.units.groups.index((s.name, c))] for c in COMPONENTS[s.kind]}
+    th = res.theta if theta_all is None else theta_all
+    theta = {c: th[res.units.groups.index((s.name, c))] for c in COMPONENTS[s.kind]}
     var = np.stack([theta[c] * scales[:, i] ** 2 for i, c in enumerate(comps)], axis=1)  # (n, c)
     return np.einsum("nc,nci,ncj->nij", var, dirs, dirs)
 
@@ -536,23 +538,24 @@ MAX_DISTANCE_NOISE = 0.01
 SPACING_SD_FACTOR = 1.3
 
 
-def _squared_spacings(C: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per board (k, 4, 3 centres; (k, 4, 3, 3) covariances): the squared spacing the six hole
-    distances show, each corrected for the length noise adds to it (``E|d + e|^2 = |d|^2 +
-    tr Cov(e)``: noisy centres lengthen every distance), averaged with weights from their
-    variance; and the variance of that average under the noise model (inf: no distance of the
-    board is precise enough, :data:`MAX_DISTANCE_NOISE`)."""
+def _squared_spacings(C: np.ndarray, cov: np.ndarray, cov_up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per board (k, 4, 3 centres; (k, 4, 3, 3) covariances at the estimated noise and at the
+    largest noise the data support): the squared spacing the six hole distances show, each
+    corrected for the length noise adds to it (``E|d + e|^2 = |d|^2 + tr Cov(e)``: noisy
+    centres lengthen every distance), averaged with weights from their variance; and the
+    variance of that average (inf: no distance of the board is precise enough even at the
+    largest noise, :data:`MAX_DISTANCE_NOISE`)."""
     q, w = [], []
     for i, j, length in _HOLE_PAIRS:
         d = C[:, i] - C[:, j]
         Cd = cov[:, i] + cov[:, j]
-        noise = np.trace(Cd, axis1=1, axis2=2)
-        q.append((np.sum(d * d, axis=1) - noise) / length**2)
-        # Var |d + e|^2 ~ 4 d'Cd d + 2 tr(Cd^2), plus (1 mm)^2 per coordinate: no distance is
+        q.append((np.sum(d * d, axis=1) - np.trace(Cd, axis1=1, axis2=2)) / length**2)
+        # Var |d + e|^2 ~ 4 d'Cd d + 2 tr(Cd^2) at the largest supported noise (a weak split
+        # may put a sensor's axis at the floor), plus (1 mm)^2 per coordinate: no distance is
         # known better than that
-        Cf = Cd + 1e-6 * np.eye(3)
+        Cf = cov_up[:, i] + cov_up[:, j] + 1e-6 * np.eye(3)
         var = 4.0 * np.einsum("ki,kij,kj->k", d, Cf, d) + 2.0 * np.einsum("kij,kji->k", Cf, Cf)
-        usable = noise <= MAX_DISTANCE_NOISE * np.sum(d * d, axis=1)
+        usable = np.trace(Cf, axis1=1, axis2=2) <= MAX_DISTANCE_NOISE * np.sum(d * d, axis=1)
         w.append(np.where(usable, length**4 / np.maximum(var, 1e-16), 0.0))
     q, w = np.array(q), np.array(w)  # (6, k); the six share noise: the average's variance is
     total = np.sum(w, axis=0)  # taken as that of its best distance
@@ -570,12 +573,19 @@ def spacing_check(res: PairResiduals) -> Check | None:
     board = res.dataset.board
     s0 = board.spacing_m
     per, all_q, all_v = {}, [], []
+    # a lidar's noise per axis is often a weak split (which axis carries it depends on the
+    # other sensors' directions): its board shapes are weighted with the mean of its axes
+    theta = np.array(res.theta)
+    for s in res.dataset.sensors:
+        if s.kind is SensorKind.LIDAR:
+            g = [res.units.groups.index((s.name, c)) for c in COMPONENTS[s.kind]]
+            theta[g] = np.mean(theta[g])
     for s in res.dataset.sensors:
         if not s.kind.is_point_cloud or np.sum(s.valid) == 0:
             continue
         C = s.points[s.valid]
-        cov = _point_covariances(res, s, C.reshape(-1, 3)).reshape(C.shape[0], 4, 3, 3)
-        q, v = _squared_spacings(C, cov)
+        cov = _point_covariances(res, s, C.reshape(-1, 3), theta).reshape(C.shape[0], 4, 3, 3)
+        q, v = _squared_spacings(C, cov, cov)
         ok = np.isfinite(v)
         if not np.any(ok):
             continue

@@ -284,6 +284,31 @@ def estimate_theta(
     return theta
 
 
+def estimate_theta_best(
+    r_metric: np.ndarray,
+    M: np.ndarray,
+    dof_factor: float,
+    batches: np.ndarray | None = None,
+    rounds: int = 8,
+    floor: float = THETA_FLOOR,
+) -> np.ndarray:
+    """:func:`estimate_theta` after 1, 2, ... ``rounds`` rounds, keeping the estimate with the
+    highest Gaussian likelihood of the residuals (``r_i ~ N(0, M_i theta)``): the reweighting
+    can wander along a direction the data hardly tell (three lidars with random yaw: after
+    three rounds two lidars' y noise sat at the floor and a third's doubled, a likelihood
+    worse than the first round's) - the likelihood says which iterate the data prefer."""
+    y = np.asarray(r_metric, dtype=float) ** 2 * dof_factor
+    used = np.any(M > 0, axis=0)
+    best, best_nll = None, np.inf
+    for k in range(1, max(int(rounds), 1) + 1):
+        theta = estimate_theta(r_metric, M, dof_factor, floor=floor, batches=batches, rounds=k)
+        pred = np.maximum(M[:, used] @ theta[used], 1e-30) if np.any(used) else np.ones(y.size)
+        nll = float(np.sum(np.log(pred) + y / pred))
+        if nll < best_nll:
+            best, best_nll = theta, nll
+    return best
+
+
 def theta_by_sensor(units: DetectionUnits, theta: np.ndarray) -> dict[str, dict[str, float]]:
     """Readable stds: ``{sensor: {component: std}}`` (m; depth: m at 1 m; angles: deg)."""
     out: dict[str, dict[str, float]] = {}
@@ -371,6 +396,19 @@ class NoiseRegion:
         mid, band, _, down = self._parts(c)
         return max(mid - band - down, 0.0)
 
+    def upper_rows(self, C: np.ndarray) -> np.ndarray:
+        """:meth:`upper` of every row of ``C`` (rows, groups) at once."""
+        C = np.asarray(C, dtype=float)
+        Cs = C * self.scale[None, :]
+        out = C @ self.theta
+        if self.values.size:
+            out = out + NOISE_BAND_Z * np.sqrt(np.sum((Cs @ self.vectors) ** 2 / self.values[None, :], axis=1))
+        if self.weak.size:
+            proj = Cs @ self.weak
+            lo, hi = self.weak_range[:, 0], self.weak_range[:, 1]
+            out = out + np.sum(np.maximum(np.maximum(hi * proj, lo * proj), 0.0), axis=1)
+        return out
+
     def group_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """(lower, upper) variance of every group."""
         eye = np.eye(self.theta.size)
@@ -436,6 +474,7 @@ __all__ = [
     "detection_units",
     "noise_region",
     "estimate_theta",
+    "estimate_theta_best",
     "group_design",
     "noise_map",
     "reflector_jacobians",

@@ -16,7 +16,8 @@ otherwise any ``undetermined`` makes it undetermined):
   do not tell may carry all of it). Reduced chi-square above the 1e-4 quantile (Bonferroni
   over the pairs) and above 3 is a **fail**.
 * ``boards``: every (pair, board) the same way, against the noise estimated *without* that
-  board (a bad board inflates the estimate it would be judged by), with the quantile corrected
+  board (a bad board inflates the estimate it would be judged by; each row at the largest
+  variance the other boards support), with the quantile corrected
   for the number of boards tested; a board far off its pair's prediction (and more than 3
   sigma RMS) *and* beyond the outlier rule's physical floor (10 cm, radar pairs 20 cm: a bad
   detection kept) is a **fail**; one only beyond the noise model is a **note**.
@@ -247,14 +248,15 @@ def pair_checks(
     z2 = r**2 / np.maximum(res.predicted, 1e-30)
     # each board against the noise estimated without it (a bad board inflates the noise
     # estimate it would otherwise be judged by)
+    # each row at the largest variance the data support (a sensor's weak share of a pair's
+    # noise may be all of it)
+    row_upper = res.region.upper_rows(M)
     z2_deleted = np.empty_like(z2)
     for k in np.unique(res.row_board):
         out = res.row_board == k
         theta_k = estimate_theta(r[~out], M[~out], m / max(m - n, 1), batches=res.batches[~out])
-        z2_deleted[out] = r[out] ** 2 / np.maximum(M[out] @ theta_k + pose_var[out], 1e-30)
-    # each row at the largest variance the data support (a sensor's weak share of a pair's
-    # noise may be all of it)
-    row_upper = res.region.upper_rows(M)
+        var_k = noise_region(M[~out], theta_k).upper_rows(M[out]) + pose_var[out]
+        z2_deleted[out] = r[out] ** 2 / np.maximum(var_k, 1e-30)
     ratios: dict[str, float] = {}
     evidence: list[Evidence] = []
     bad_pairs, bad_boards, odd_boards = [], [], []

@@ -44,7 +44,7 @@ from rigcal.sensors.radar import project_2d
 from rigcal.targets.circle_board import board_centres, reflectors_from_centres
 
 #: tail probability of each family of named-mistake tests (Bonferroni over its parameters)
-ALPHA = 2.5e-4
+ALPHA = 1e-3
 #: a mistake is named only when its parameter is at least this far off (physical tolerance):
 #: a sensor's scale (relative), the reflector offset [m] (a corner reflector's phase centre is
 #: not known better; noisy board normals also shorten the offset the pairs show), the hole

@@ -170,7 +170,8 @@ def run(args, console) -> int:
     if args.json:
         sys.stdout.write(result_to_json_text(result) + "\n")
     summary(result, console)
-    forced = {EXIT_FLAGGED: " (FLAGGED, written with --force)", EXIT_UNDETERMINED: " (UNDETERMINED, written with --force)"}
+    forced = {EXIT_FLAGGED: " (FLAGGED, written with --force)",
+              EXIT_UNDETERMINED: " (UNDETERMINED, written with --force)"}
     console.print(f"results written to {args.out}/" + forced.get(code, ""))
     return code
 

@@ -41,7 +41,7 @@ from rigcal.problem.consistency import FAIL, NOTE, PASS, Check, Evidence, PairRe
 from rigcal.problem.numerics import chi2_isf
 from rigcal.problem.noise import COMPONENTS
 from rigcal.sensors.radar import project_2d
-from rigcal.targets.circle_board import board_centres, reflectors_from_centres
+from rigcal.targets.circle_board import reflectors_from_centres
 
 #: tail probability of each family of named-mistake tests (Bonferroni over its parameters)
 ALPHA = 1e-3
@@ -482,7 +482,8 @@ def reflector_check(res: PairResiduals, full: Dataset | None = None, skip: Seque
     wrong = (np.abs(z_k) > limit_k) & (np.abs(b_k) > TOLERANCE["offset"])
     excluded = _excluded_offsets(res.dataset, full, res) if full is not None else {}
     far = {k: v for k, v in excluded.items() if offset > 0 and abs(v + 2.0 * offset) < 0.5 * offset}
-    evidence = (Evidence("reflector offset - configured", float(beta[0]), float(limit * sd), f"estimate [m] (threshold: {limit:.1f} std)"),) + tuple(
+    evidence = (Evidence("reflector offset - configured", float(beta[0]), float(limit * sd),
+                         f"estimate [m] (threshold: {limit:.1f} std)"),) + tuple(
         Evidence(f"board {int(k)}", float(b), float(limit_k * s), "offset estimate - configured [m]")
         for k, b, s in zip(boards, b_k, sd_k))
     if np.any(wrong & side) or (far and np.any(wrong)):
@@ -605,7 +606,8 @@ def spacing_check(res: PairResiduals) -> Check | None:
                SPACING_SD_FACTOR * math.sqrt(v2) / (2.0 * max(math.sqrt(max(q2, 0.0)), 1e-9)))
            for n, (q2, v2) in per.items()}
     limit = z_critical(ALPHA, 1)
-    evidence = (Evidence("spacing - configured", beta, limit * sd, f"estimate [m] (threshold: {limit:.1f} std)"),) + tuple(
+    evidence = (Evidence("spacing - configured", beta, limit * sd,
+                         f"estimate [m] (threshold: {limit:.1f} std)"),) + tuple(
         Evidence(f"{n} spacing - configured", b, limit * v, "estimate [m]") for n, (b, v) in per.items())
     if abs(beta) > limit * sd and abs(beta) > TOLERANCE["spacing"]:
         # every sensor must agree (one sensor off is its own scale, not the board's)
@@ -747,7 +749,8 @@ def swap_findings(poses: Mapping[str, np.ndarray], initial: Mapping[str, np.ndar
     if pair is None:
         return []
     a, b = pair
-    return [f"{file_label(dataset.sensor(a))} and {file_label(dataset.sensor(b))}: detection files swapped? {a} and {b} "
+    return [f"{file_label(dataset.sensor(a))} and {file_label(dataset.sensor(b))}: detection files swapped? "
+            f"{a} and {b} "
             f"are where the other was in the initial poses ({base[a]:.2f} and {base[b]:.2f} from their own, "
             f"{best:.3f} exchanged; m + rad) - give each sensor its own file"]
 

@@ -377,7 +377,9 @@ class NoiseRegion:
     def _parts(self, c: np.ndarray) -> tuple[float, float, float, float]:
         c = np.asarray(c, dtype=float)
         cs = c * self.scale
-        band = NOISE_BAND_Z * float(np.sqrt(np.sum((self.vectors.T @ cs) ** 2 / self.values))) if self.values.size else 0.0
+        band = 0.0
+        if self.values.size:
+            band = NOISE_BAND_Z * float(np.sqrt(np.sum((self.vectors.T @ cs) ** 2 / self.values)))
         proj = self.weak.T @ cs if self.weak.size else np.zeros(0)
         lo_t, hi_t = (self.weak_range[:, 0], self.weak_range[:, 1]) if proj.size else (np.zeros(0), np.zeros(0))
         up = float(np.sum(np.maximum(np.maximum(hi_t * proj, lo_t * proj), 0.0)))

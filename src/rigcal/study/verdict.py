@@ -35,7 +35,7 @@ import numpy as np
 
 from rigcal.dataset import BoardGeometry, Dataset, SensorKind
 from rigcal.errors import InputError, RigcalError
-from rigcal.geometry.se3 import from_rt, invert, se3_exp
+from rigcal.geometry.se3 import from_rt, se3_exp
 from rigcal.sim.rig import SimResult, SimSensor, make_rig_placements, random_rig, simulate
 
 #: every fault of the study, in the order of the table

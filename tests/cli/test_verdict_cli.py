@@ -217,3 +217,18 @@ def test_help_lists_the_exit_codes(capsys):
         run(["--help"])
     out = capsys.readouterr().out
     assert "  5    undetermined" in out and "  3    flagged" in out
+
+
+def test_batch_reports_an_undetermined_dataset_with_its_exit_code(tmp_path, rig, capsys):
+    ds = rig[2].dataset
+    pts = np.array(ds.sensor("radar1").points)
+    pts[3:] = np.nan
+    write_dataset(ds, tmp_path / "car_a")
+    write_dataset(_with_points(ds, "radar1", pts), tmp_path / "car_b")
+    out = tmp_path / "out"
+    code = run(["calibrate", "--batch", str(tmp_path / "car_a"), str(tmp_path / "car_b"), *ARGS, "--out", str(out),
+                "--scheduler", "serial", "--json"])
+    doc = json.loads(capsys.readouterr().out)
+    assert code == EXIT_UNDETERMINED
+    assert {d["dataset"]: d["status"] for d in doc} == {"car_a": "written", "car_b": "undetermined, not written"}
+    assert (out / "car_a" / "calibration.yaml").is_file() and not (out / "car_b").exists()

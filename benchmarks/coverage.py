@@ -3,12 +3,17 @@
 Board modes: random 6-sensor rigs (2 lidars, 2 cameras, 2 2D radars) with unequal noise per
 sensor kind (lidar 4 mm, camera 20 mm lateral + 2 mm depth at 1 m growing with range squared,
 radar 30 mm range, 0.3 deg azimuth), 15 boards; the reference is the first lidar, so 5 sensors
-are judged per trial and mode (:mod:`rigcal.study.board_coverage`). Motion capture: simulated
+are judged per trial and mode (:mod:`rigcal.study.board_coverage`), and every relative transform
+between two of them. With priors (the default runs both): every non-reference sensor's nominal
+mounting is drawn around the truth with the stated tolerance (lidar and camera 2 cm / 1 deg in
+every direction, 2D radar z 2 cm, roll and pitch 1 deg) and calibrated with that prior
+(``--initial`` + ``prior``). Motion capture: simulated
 sessions with sensor noise unlike what the sensors are told, per-hold MCS errors and corner
 biases (:func:`rigcal.study.coverage.mocap_coverage`), next to the old covariance.
 
 Goal: 0.90 - 0.98 everywhere.
 Usage: python benchmarks/coverage.py [--trials N] [--seed S] [--modes mcpe,fcpe,pse] [--mocap-trials N]
+                                    [--priors both|off|only]
 """
 
 from __future__ import annotations
@@ -20,15 +25,15 @@ import time
 
 from threadpoolctl import threadpool_limits
 
-from rigcal.study.board_coverage import board_coverage
+from rigcal.study.board_coverage import PriorSpec, board_coverage
 
 
 def _row(label: str, f: dict) -> str:
     kinds = "  ".join(
         f"{k} {v['position']:.2f}/{v['pose']:.2f} (n={v['sensors']})" for k, v in f["by_kind"].items()
     )
-    return (f"{label:8} {f['position']:9.3f} {f['pose']:9.3f} {f['sensors']:8d} "
-            f"{f['failures']:5d}/{f['runs']:<4d} {f['flagged']:5d}/{f['runs']:<4d}  {kinds}")
+    return (f"{label:12} {f['position']:9.3f} {f['pose']:9.3f} {f['relative']:9.3f} {f['sensors']:8d} "
+            f"{f['relatives']:5d} {f['failures']:5d}/{f['runs']:<4d} {f['flagged']:5d}/{f['runs']:<4d}  {kinds}")
 
 
 def main() -> int:
@@ -37,19 +42,26 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--modes", default="mcpe,fcpe,pse")
     ap.add_argument("--mocap-trials", type=int, default=100, help="0 skips motion capture")
+    ap.add_argument("--priors", default="both", choices=["both", "off", "only"],
+                    help="board modes without mounting priors, with them, or both (default)")
     args = ap.parse_args()
     print(f"machine: {platform.processor() or platform.machine()}, {platform.system()}, "
           f"python {platform.python_version()}")
     print("fraction of true poses inside the reported 95 % region "
-          "(position: 3D ellipsoid; pose: 6-DOF; 2D radars: in-plane ellipse + bounded intervals)")
-    print(f"{'mode':8} {'position':>9} {'pose':>9} {'sensors':>8} {'fail/runs':>10} {'flagged':>10}  "
-          "by kind (position/pose)")
-    t0 = time.perf_counter()
-    with threadpool_limits(limits=1):
-        res = board_coverage(trials=args.trials, seed=args.seed, modes=tuple(args.modes.split(",")))
-    for mode, f in res.items():
-        print(_row(mode, f))
-    print(f"board modes: {args.trials} trials, {time.perf_counter() - t0:.0f} s")
+          "(position: 3D ellipsoid; pose: 6-DOF; 2D radars: in-plane ellipse + bounded intervals; "
+          "relative: every pair of non-reference sensors, T_a_b)")
+    print(f"{'mode':12} {'position':>9} {'pose':>9} {'relative':>9} {'sensors':>8} {'pairs':>5} "
+          f"{'fail/runs':>10} {'flagged':>10}  by kind (position/pose)")
+    scenarios = {"both": (None, PriorSpec()), "off": (None,), "only": (PriorSpec(),)}[args.priors]
+    for priors in scenarios:
+        t0 = time.perf_counter()
+        with threadpool_limits(limits=1):
+            res = board_coverage(trials=args.trials, seed=args.seed, modes=tuple(args.modes.split(",")),
+                                 priors=priors)
+        for mode, f in res.items():
+            print(_row(mode + (" +prior" if priors else ""), f))
+        print(f"board modes{' with priors' if priors else ''}: {args.trials} trials, "
+              f"{time.perf_counter() - t0:.0f} s")
     if args.mocap_trials:
         from rigcal.study.coverage import mocap_coverage
 

@@ -9,7 +9,10 @@ refused. Then the first ``--fault-rigs`` rigs again with each injected mistake
 least 10 boards (goal: 95 % in every mode that can see it) and names it.
 
 Usage: python benchmarks/verdict.py [--rigs N] [--fault-rigs M] [--seed S] [--modes mcpe,fcpe,pse]
-       [--faults f1,f2,...] [--json FILE]
+       [--faults f1,f2,...] [--minutes T] [--json FILE]
+
+``--minutes T``: start no rig after T minutes; the tables then cover the rigs run (the sample
+sizes say how many).
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ import os
 import platform
 import sys
 import time
+import traceback
 from dataclasses import asdict
 
 from threadpoolctl import threadpool_limits
@@ -47,16 +51,26 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--modes", default="mcpe,fcpe,pse")
     ap.add_argument("--faults", default=",".join(FAULT_NAMES))
+    ap.add_argument("--minutes", type=float, default=None, help="start no rig after this many minutes")
     ap.add_argument("--json", metavar="FILE", help="write every run to FILE")
     args = ap.parse_args()
     modes = tuple(args.modes.split(","))
     faults = tuple(f for f in args.faults.split(",") if f)
     print(f"machine: {machine()}")
     t0 = time.perf_counter()
-    runs = []
+    runs, crashed = [], []
     with threadpool_limits(limits=1):
         for i in range(max(args.rigs, args.fault_rigs)):
-            rr = run_rig(i, args.seed, modes, faults if i < args.fault_rigs else ())
+            if args.minutes is not None and time.perf_counter() - t0 > 60 * args.minutes:
+                print(f"time budget of {args.minutes:g} min reached: stopped after {i} rigs", flush=True)
+                break
+            try:
+                rr = run_rig(i, args.seed, modes, faults if i < args.fault_rigs else ())
+            except Exception:  # a crash is a bug: shown and counted, the other rigs still run
+                traceback.print_exc()
+                crashed.append(i)
+                print(f"rig {i + 1}: CRASHED", flush=True)
+                continue
             if i >= args.rigs:
                 rr = [r for r in rr if r.fault != "clean"]
             runs += rr
@@ -80,7 +94,8 @@ def main() -> int:
                 cells.append(f"{v['caught']}/{v['rigs']} ({100 * v['caught'] / v['rigs']:.0f}%) n{v['named']}"
                              if v else "-")
             print(f"{fault:24} " + " ".join(f"{c:>20}" for c in cells))
-    print(f"\n{len(runs)} calibrations, {time.perf_counter() - t0:.0f} s")
+    print(f"\n{len(runs)} calibrations, {time.perf_counter() - t0:.0f} s; rigs crashed: "
+          f"{', '.join(str(i + 1) for i in crashed) or 'none'}")
     if args.json:
         with open(args.json, "w", encoding="utf-8") as f:
             json.dump({"summary": s, "runs": [asdict(r) for r in runs]}, f, indent=1)

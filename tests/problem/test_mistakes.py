@@ -147,6 +147,19 @@ def test_reflector_offset_is_estimated():
     assert check.evidence[0].statistic == pytest.approx(0.105, abs=0.02)
 
 
+def test_with_one_radar_an_offset_and_a_range_bias_are_both_named():
+    """One radar: an offset common to every board looks like a bias of its ranges (the real
+    Prius radar shows +0.1 m): a note naming both, not a claim about the board."""
+    ds = three_radar_rig(7).dataset
+    one = replace(ds, sensors=tuple(s for s in ds.sensors if s.name not in ("radar1", "radar2")),
+                  board=BoardGeometry(reflector_offset_m=0.0))
+    _, res = _residuals(one)
+    check = reflector_check(res)
+    assert check.status == NOTE, check.detail
+    assert "set board.reflector_offset_m: 0.1" in check.detail and "bias of radar3d1's ranges" in check.detail
+    assert abs(check.evidence[0].statistic) > check.evidence[0].threshold
+
+
 def test_one_2d_radar_cannot_tell_the_offset_from_its_translation(rig):
     """The estimate is right, but its std is honest: with a single 2D radar its in-plane
     translation absorbs most of a range offset, so the check does not claim it."""

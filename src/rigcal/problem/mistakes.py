@@ -307,6 +307,11 @@ def usable_rows(res: PairResiduals, skip: Sequence[str] = ()) -> np.ndarray:
     return keep
 
 
+def _sensor_rows(res: PairResiduals, name: str) -> np.ndarray:
+    """(rows,) bool: rows of the pairs that involve sensor ``name``."""
+    return ~usable_rows(res, (name,))
+
+
 def fit_alternatives(res: PairResiduals, columns: np.ndarray, rows: np.ndarray | None = None,
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """For each column j = d residuals / d beta (rows, q) of an extra parameter beta (0 as
@@ -448,10 +453,14 @@ def _judged_without(res: PairResiduals, rows: np.ndarray, col: np.ndarray, per: 
     return out_b, out_sd
 
 
-def reflector_check(res: PairResiduals, full: Dataset | None = None, skip: Sequence[str] = ()) -> Check | None:
+def reflector_check(res: PairResiduals, full: Dataset | None = None, skip: Sequence[str] = (),
+                    held_guess: Sequence[str] = ()) -> Check | None:
     """``reflector``: the configured reflector offset against what the radar pairs show, for
     all boards together and board by board (a reflector in front of the plate on some boards:
-    2 x the offset nearer). Pairs with a sensor in ``skip`` (undetermined) are left out."""
+    2 x the offset nearer). Pairs with a sensor in ``skip`` (undetermined) are left out.
+    ``held_guess``: 2D radars whose z, roll and pitch are held at the automatic guess (every
+    reflector on the radar plane): a wrong guess looks like an offset common to all boards, so
+    that finding is a note naming both causes (one that differs board by board still fails)."""
     rows = usable_rows(res, skip)
     col = np.where(rows, offset_column(res), 0.0)
     if not np.any(col):
@@ -495,6 +504,24 @@ def reflector_check(res: PairResiduals, full: Dataset | None = None, skip: Seque
             "the plate (mounted on the wrong side) on those placements - fix them, or exclude those boards"
             + (f" (boards {', '.join(map(str, sorted(far)))} were already excluded as outliers)" if far else "")
             + (f"; boards {', '.join(map(str, others))} are off too" if others else "")), evidence)
+    held = [n for n in held_guess if np.any(rows & _sensor_rows(res, n))]
+    radars = [s.name for s in res.dataset.sensors
+              if s.kind in (SensorKind.RADAR, SensorKind.RADAR3D) and np.any(rows & _sensor_rows(res, s.name))]
+    if abs(beta[0]) > limit * sd and abs(beta[0]) > TOLERANCE["offset"] and held:
+        return Check("reflector", NOTE, (
+            f"the radar pairs put the reflector {offset + beta[0]:.3f} +- {sd:.3f} m behind the front face, the "
+            f"configured offset is {offset:.3f} m - but {', '.join(held)}'s z, roll and pitch are held at the "
+            "automatic guess (every reflector on the radar plane), and a wrong guess looks the same: give its "
+            "mounting with --initial, or calibrate without --hold-radar-plane; if the offset is wrong, set "
+            f"board.reflector_offset_m: {max(offset + beta[0], 0.0):.3f}"), evidence)
+    if abs(beta[0]) > limit * sd and abs(beta[0]) > TOLERANCE["offset"] and len(radars) == 1:
+        # one radar: an offset common to all boards and a bias of that radar's ranges look alike
+        # (boards face the rig); two radars tell them apart
+        return Check("reflector", NOTE, (
+            f"the radar pairs put the reflector {offset + beta[0]:.3f} +- {sd:.3f} m behind the front face, the "
+            f"configured offset is {offset:.3f} m: a wrong offset (set board.reflector_offset_m: "
+            f"{max(offset + beta[0], 0.0):.3f}) or a bias of {radars[0]}'s ranges of about {beta[0]:+.2f} m - with one "
+            "radar the two look alike"), evidence)
     if abs(beta[0]) > limit * sd and abs(beta[0]) > TOLERANCE["offset"]:
         return Check("reflector", FAIL, (
             f"board geometry: the radar pairs put the reflector {offset + beta[0]:.3f} +- {sd:.3f} m behind the "
@@ -774,14 +801,16 @@ def named_checks(
     outliers: Mapping[str, Sequence[int]] = {},  # noqa: B006 - read only
     bad_boards: Mapping[str, Sequence[int]] = {},  # noqa: B006
     skip: Sequence[str] = (),
+    held_guess: Sequence[str] = (),
 ) -> tuple[Check, ...]:
     """The named-mistake checks after the solve: ``scale``, ``reflector``, ``spacing``,
     ``placements`` (suspects: ``outliers`` excluded and ``bad_boards`` kept, per sensor).
     ``full``: the dataset before outliers were excluded;
-    ``skip``: undetermined sensors, whose pairs the tests of an extra parameter leave out."""
+    ``skip``: undetermined sensors, whose pairs the tests of an extra parameter leave out;
+    ``held_guess``: 2D radars held at the automatic guess (:func:`reflector_check`)."""
     if res is None:
         return ()
-    checks = [c for c in (scale_check(res, skip), reflector_check(res, full, skip), spacing_check(res))
+    checks = [c for c in (scale_check(res, skip), reflector_check(res, full, skip, held_guess), spacing_check(res))
               if c is not None]
     suspects: dict[str, set[int]] = {}
     for src in (outliers, bad_boards):

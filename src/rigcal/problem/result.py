@@ -57,16 +57,14 @@ class BoundedSet:
         if not np.any(g):
             return 0.0, 0.0
         V = self.vertices
-        if not len(V):  # clipping a degenerate (flat) set can leave no vertex: solve the two LPs
-            from scipy.optimize import linprog
+        if not len(V):  # clipping a degenerate (flat) set can leave no vertex: the two optima
+            from rigcal.problem.numerics import maximise_in_polytope
 
-            bounds = list(zip(-self.limit, self.limit))
-            ends = []
-            for sign in (1.0, -1.0):
-                lp = linprog(sign * g, A_ub=self.A if self.A.size else None,
-                             b_ub=np.maximum(self.b, 0.0) if self.A.size else None, bounds=bounds, method="highs")
-                ends.append(sign * lp.fun if lp.status == 0 else 0.0)
-            return min(ends[0], 0.0), max(ends[1], 0.0)
+            A = self.A.reshape(-1, g.size)
+            b = np.maximum(self.b, 0.0)
+            hi = float(g @ maximise_in_polytope(g, A, b, self.limit))
+            lo = float(g @ maximise_in_polytope(-g, A, b, self.limit))
+            return min(lo, 0.0), max(hi, 0.0)
         vals = V @ g
         return min(float(vals.min()), 0.0), max(float(vals.max()), 0.0)
 

@@ -9,7 +9,7 @@ refused. Then the first ``--fault-rigs`` rigs again with each injected mistake
 least 10 boards (goal: 95 % in every mode that can see it) and names it.
 
 Usage: python benchmarks/verdict.py [--rigs N] [--fault-rigs M] [--seed S] [--modes mcpe,fcpe,pse]
-       [--faults f1,f2,...] [--minutes T] [--json FILE]
+       [--faults f1,f2,...] [--first I] [--minutes T] [--json FILE]
 
 ``--minutes T``: start no rig after T minutes; the tables then cover the rigs run (the sample
 sizes say how many).
@@ -51,6 +51,7 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--modes", default="mcpe,fcpe,pse")
     ap.add_argument("--faults", default=",".join(FAULT_NAMES))
+    ap.add_argument("--first", type=int, default=0, help="start at rig I (a run split in parts)")
     ap.add_argument("--minutes", type=float, default=None, help="start no rig after this many minutes")
     ap.add_argument("--json", metavar="FILE", help="write every run to FILE")
     args = ap.parse_args()
@@ -60,7 +61,7 @@ def main() -> int:
     t0 = time.perf_counter()
     runs, crashed = [], []
     with threadpool_limits(limits=1):
-        for i in range(max(args.rigs, args.fault_rigs)):
+        for i in range(args.first, max(args.rigs, args.fault_rigs)):
             if args.minutes is not None and time.perf_counter() - t0 > 60 * args.minutes:
                 print(f"time budget of {args.minutes:g} min reached: stopped after {i} rigs", flush=True)
                 break

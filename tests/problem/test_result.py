@@ -26,3 +26,9 @@ def test_extremes_of_a_set_whose_clipping_left_no_vertex_come_from_its_lps():
     object.__setattr__(b, "vertices", np.zeros((0, 2)))  # what the clipping left
     assert b.extremes(np.array([1.0, 0.0])) == pytest.approx((-0.1, 0.07))
     assert b.extremes(np.array([0.0, -2.0])) == pytest.approx((-0.1, 0.1))
+
+
+def test_extremes_of_a_set_unbounded_one_way_are_infinite_that_way():
+    b = BoundedSet(("z",), np.array([[1.0]]), np.array([0.02]), np.array([np.inf]), np.zeros((6, 1)))
+    object.__setattr__(b, "vertices", np.zeros((0, 1)))
+    assert b.extremes(np.array([1.0])) == (-np.inf, pytest.approx(0.02))

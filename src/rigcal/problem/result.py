@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Any
@@ -62,9 +63,13 @@ class BoundedSet:
 
             A = self.A.reshape(-1, g.size)
             b = np.maximum(self.b, 0.0)
-            hi = float(g @ maximise_in_polytope(g, A, b, self.limit))
-            lo = float(g @ maximise_in_polytope(-g, A, b, self.limit))
-            return min(lo, 0.0), max(hi, 0.0)
+            ends = []
+            for sign in (1.0, -1.0):
+                try:
+                    ends.append(float(g @ maximise_in_polytope(sign * g, A, b, self.limit)))
+                except ValueError:  # no limit that way (an infinite box side): unbounded
+                    ends.append(sign * math.inf)
+            return min(ends[1], 0.0), max(ends[0], 0.0)
         vals = V @ g
         return min(float(vals.min()), 0.0), max(float(vals.max()), 0.0)
 

@@ -121,3 +121,23 @@ def test_demo_absolute_runs_the_absolute_path_into_a_urdf(tmp_path, capsys):
     again = next(line for line in text.splitlines() if line.startswith("run it again with: "))
     argv = shlex.split(again.split(": ", 1)[1])
     assert argv[0] == "rigcal" and run(argv[1:]) == 0  # the printed command works as printed
+
+
+def test_absolute_with_an_undetermined_sensor_ends_with_exit_5(inputs, monkeypatch, capsys):
+    """The relative calibration's 'undetermined' ends `rigcal absolute` as it ends `calibrate`:
+    exit 5, nothing written unless --force (bounds tightened below what 20 boards give)."""
+    from rigcal.cli.codes import EXIT_UNDETERMINED
+    from rigcal.problem import determined
+
+    for kind in determined.DETERMINED_BOUND:
+        monkeypatch.setitem(determined.DETERMINED_BOUND, kind, (1e-5, 1e-4))
+    tmp, manifest, _ = inputs
+    argv = ["absolute", str(manifest), "--external", "leica", "--scan", str(tmp / "scan.pcd"),
+            "--labels", str(tmp / "labels.yaml")]
+    assert run([*argv, "--out", str(tmp / "undetermined")]) == EXIT_UNDETERMINED
+    text = " ".join(capsys.readouterr().out.split())
+    assert "not written" in text and "leaves a pose undetermined (exit code 5)" in text
+    assert not (tmp / "undetermined").exists()
+    assert run([*argv, "--out", str(tmp / "forced"), "--force"]) == EXIT_UNDETERMINED
+    data = yaml.safe_load((tmp / "forced" / "absolute.yaml").read_text())
+    assert data["verdict"]["status"] == "undetermined"

@@ -276,7 +276,7 @@ def test_check_a_recording_detected_first(tmp_path, capsys):
     rig = tmp_path / "detect_rig.yaml"
     rig.write_text(RADAR_RIG)
     assert run(["calibrate", str(_radar_bag(tmp_path / "a.bag", 0)), "--rig", str(rig), "--out", str(tmp_path / "cal"),
-                "--cv-folds", "0", "--reference", "radar2"]) == 0
+                "--cv-folds", "0", "--reference", "radar2", "--max-std", "1000/45"]) == 0  # a loose 5-placement zigzag
     capsys.readouterr()
     code = run(["check", str(tmp_path / "cal"), str(_radar_bag(tmp_path / "b.bag", 1)), "--rig", str(rig)])
     out = capsys.readouterr().out

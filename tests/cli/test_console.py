@@ -105,8 +105,8 @@ def test_top_help_lists_the_exit_codes(capsys):
     text = capsys.readouterr().out
     assert "exit codes:" in text
     codes = {line.split()[0] for line in text.split("exit codes:")[1].splitlines() if re.match(r"  \d+ ", line)}
-    assert codes == {"0", "1", "2", "3", "4", "6", "7", "130", "143"}
-    assert "flagged" in text and "partial" in text and "moved (rigcal check / diff)" in text
+    assert codes == {"0", "1", "2", "3", "4", "5", "6", "7", "130", "143"}
+    assert "flagged" in text and "partial" in text and "undetermined" in text and "moved (rigcal check / diff)" in text
 
 
 def test_demo_help_says_the_bag_is_deleted_unless_keep_bag(capsys):

@@ -116,10 +116,11 @@ def test_cloud_without_xyz_names_the_topic(tmp_path, capsys):
 
 
 def test_calibrate_with_rig_runs_detection_first(tmp_path, rig, capsys):
-    # two radars cannot be calibrated to each other in 2D, but a 2D and a 3D radar can
+    # two radars cannot be calibrated to each other in 2D, but a 2D and a 3D radar can; four
+    # placements in a zigzag leave the 2D radar's in-plane pose loose: the bound is widened
     bag = _radar_bag(tmp_path / "rec.bag")
     code = run(["calibrate", str(bag), "--rig", str(rig), "--out", str(tmp_path / "cal"), "--no-plot",
-                "--cv-folds", "0", "--reference", "radar2"])
+                "--cv-folds", "0", "--reference", "radar2", "--max-std", "1000/45"])
     out = capsys.readouterr()
     assert code == 0, out.err
     assert "4 board placements found" in out.out and "radar2-radar1" in out.out.replace("radar1-radar2", "radar2-radar1")
@@ -152,8 +153,10 @@ def test_calibrate_with_rig_keeps_the_detections_and_says_how_to_rerun(tmp_path,
 
     bag = _radar_bag(tmp_path / "rec.bag")
     cal = tmp_path / "cal"
+    # four placements in a zigzag leave the 2D radar's in-plane pose loose: the bound is widened
+    wide = ["--max-std", "1000/45"]
     assert run(["calibrate", str(bag), "--rig", str(rig), "--out", str(cal), "--cv-folds", "0",
-                "--reference", "radar2"]) == 0
+                "--reference", "radar2", *wide]) == 0
     out = capsys.readouterr().out
     kept = cal / "detections" / "rig.yaml"
     assert kept.is_file() and (cal / "detections" / "radar1.csv").is_file()
@@ -162,11 +165,11 @@ def test_calibrate_with_rig_keeps_the_detections_and_says_how_to_rerun(tmp_path,
     argv = shlex.split(command)[1:]
     # PSE needs a lidar or camera: for these two radars the other mode offered is MCPE
     assert argv[:4] == ["calibrate", str(kept), "--mode", "mcpe"] and argv[-1] == str(tmp_path / "cal_mcpe")
-    assert run([*argv, "--cv-folds", "0", "--reference", "radar2"]) == 0
+    assert run([*argv, "--cv-folds", "0", "--reference", "radar2", *wide]) == 0
     assert "detecting" not in capsys.readouterr().out  # nothing detected again
     # the kept detections are the recording's: FCPE from them equals FCPE from the recording
     assert run(["calibrate", str(kept), "--out", str(tmp_path / "again"), "--cv-folds", "0",
-                "--reference", "radar2"]) == 0
+                "--reference", "radar2", *wide]) == 0
     a = yaml.safe_load((cal / "calibration.yaml").read_text())["sensors"]["radar1"]["T_reference_sensor"]
     b = yaml.safe_load((tmp_path / "again" / "calibration.yaml").read_text())["sensors"]["radar1"]["T_reference_sensor"]
     np.testing.assert_allclose(a, b, atol=1e-9)

@@ -29,8 +29,15 @@ def test_clean_rig_is_consistent(sim, mode):
     assert r.verdict.status == "consistent", r.verdict.failed
     assert not r.flagged
     names = [c.name for c in r.verdict.checks]
-    assert names[:4] == ["pairs", "boards", "noise", "rank"]
-    assert "bounded" in names  # the 2D radar's z, roll, pitch
+    assert names[:4] == ["inputs", "pairs", "boards", "noise"]
+    assert names.index("rank") < names.index("determined") < names.index("bounded")  # z, roll, pitch
+    assert {"scale", "reflector", "spacing"} <= set(names)
+    # the evidence: every pair's statistic and threshold, the noise model per sensor and axis
+    pairs = next(c for c in r.verdict.checks if c.name == "pairs")
+    assert {e.item for e in pairs.evidence} == {"lidar1-camera1", "lidar1-radar1", "camera1-radar1"}
+    assert all(e.statistic <= e.threshold for e in pairs.evidence)
+    assert set(r.verdict.noise["camera1"]) == {"lateral", "depth"}
+    assert r.verdict.to_dict()["noise"]["radar1"]["range"]["high"] >= r.verdict.noise["radar1"]["range"]["estimate"]
 
 
 def test_a_wrong_pose_is_flagged(sim):
@@ -60,11 +67,14 @@ def test_a_bad_board_kept_is_flagged_and_named(sim):
     assert r.outliers and not r.flagged
 
 
-def test_rank_deficiency_fails_and_bounds_are_notes():
+def test_rank_deficiency_is_undetermined_and_bounds_are_notes():
     v = verdict(Check("pairs", PASS, ""), Check("boards", PASS, ""), True, {"radar1": {"z": (0.3, 0.6, 0.3)}}, {})
-    assert v.status == "flagged" and [c.name for c in v.failed] == ["rank"]
+    assert v.status == "undetermined" and not v.failed and [c.name for c in v.undetermined] == ["rank"]
     assert any(c.status == NOTE and c.name == "bounded" for c in v.checks)
-    assert v.to_dict()["status"] == "flagged"
+    assert v.to_dict()["status"] == "undetermined"
+    # a failed check takes precedence
+    v = verdict(Check("pairs", FAIL, ""), Check("boards", PASS, ""), True, {}, {})
+    assert v.status == "flagged"
     # absolute values with the estimate; the rank line does not call bounded directions determined
     ok = verdict(Check("pairs", PASS, ""), Check("boards", PASS, ""), False, {"radar1": {"z": (0.3, 0.6, 0.3)}}, {})
     text = {c.name: c.detail for c in ok.checks}
@@ -107,7 +117,9 @@ def test_implausible_noise_is_flagged(sim):
     ))
     r = calibrate(scaled, CalibrationOptions(mode="fcpe", detect_outliers=False))
     assert r.flagged
-    assert {c.name for c in r.verdict.failed} & {"noise", "pairs", "boards"}
+    assert {c.name for c in r.verdict.failed} & {"noise", "pairs", "boards", "scale"}
+    scale = next(c for c in r.verdict.checks if c.name == "scale")
+    assert scale.status == FAIL and scale.detail.startswith("camera1: detections 1.30")
 
 
 def _mocap_fit(noise_px: float, within: int):

@@ -129,3 +129,43 @@ def test_large_noise_maps_are_sparse_with_the_same_entries(rig, monkeypatch):
     assert not isinstance(sparse, np.ndarray) and sparse.format == "csr"
     np.testing.assert_array_equal(to_dense(sparse), dense)
     np.testing.assert_allclose(group_design(sparse, units), group_design(dense, units), rtol=1e-12)
+
+
+def test_noise_region_bounds_a_split_the_data_do_not_tell():
+    """Two groups seen only as a sum (one pair, two sensors): each may carry all of it, so its
+    upper bound is the sum and its lower bound 0; a group seen alone is tight."""
+    from rigcal.problem.noise import noise_region
+
+    rng = np.random.default_rng(0)
+    n = 400
+    M = np.zeros((n, 3))
+    M[:200, 0] = M[:200, 1] = 1.0  # rows that see group 0 + group 1 only
+    M[200:, 2] = 1.0  # rows that see group 2 only
+    theta = np.array([4e-4, 1e-10, 1e-4])  # the estimate put the pair's noise on group 0
+    region = noise_region(M, theta)
+    low, high = region.group_bounds()
+    assert high[1] == pytest.approx(4e-4, rel=0.05)  # group 1 may carry the pair's whole noise
+    assert low[0] == pytest.approx(0.0, abs=1e-6) and low[1] == 0.0
+    assert 1e-4 < high[2] < 1.5e-4 and 0.6e-4 < low[2] < 1e-4  # seen alone: within ~30 %
+    # the pair's sum itself is determined
+    assert region.upper(np.array([1.0, 1.0, 0.0])) == pytest.approx(4e-4, rel=0.35)
+    assert rng is not None
+
+
+def test_noise_region_of_a_loop_is_determined():
+    from rigcal.problem.noise import noise_region
+
+    # three sensors in a loop: rows see a+b, b+c, a+c - with enough rows each is determined
+    M = np.zeros((6000, 3))
+    M[:2000, [0, 1]] = 1.0
+    M[2000:4000, [1, 2]] = 1.0
+    M[4000:, [0, 2]] = 1.0
+    theta = np.array([1e-4, 2e-4, 3e-4])
+    region = noise_region(M, theta)
+    low, high = region.group_bounds()
+    assert region.weak.shape[1] == 0
+    assert np.all(high < 2.0 * theta) and np.all(low > 0.3 * theta)
+    # with a tenth of the rows the split of the smallest is no longer told (relative standard
+    # error about 0.5): it may be anywhere from 0 to what its pairs allow
+    low, high = noise_region(M[::10], theta).group_bounds()
+    assert low[0] == 0.0 and high[0] > 3 * theta[0]

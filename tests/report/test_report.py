@@ -271,3 +271,30 @@ def test_hand_edited_report_data_cannot_break_out_of_the_page(fitted, sim):
     data["result"]["verdict"]["checks"] = [{"name": "pairs", "status": "pass"}]
     with pytest.raises(InputError, match=r"r.json: malformed report data \(UndefinedError"):
         render_report(data, "r.json")
+
+
+def test_the_report_shows_the_verdicts_evidence(fitted, sim):
+    """Each check's statistic and threshold, and the noise model per sensor and axis with the
+    range the data support."""
+    html = render_report(json.loads(report_json_text(calibration_report(fitted, sim.dataset))))
+    evidence = html.split('id="evidence"', 1)[1].split("</details>", 1)[0]
+    pairs = evidence.split('data-check="pairs"', 1)[1].split("</table>", 1)[0]
+    for pair, ratio in (("lidar1-camera1", next(e for e in next(c for c in fitted.verdict.checks
+                                                                 if c.name == "pairs").evidence
+                                                 if e.item == "lidar1-camera1").statistic),):
+        assert f"<td>{pair}</td><td>{ratio:.4g}</td><td>3</td>" in pairs
+    assert 'data-check="determined"' in evidence and 'data-check="scale"' in evidence
+    noise = html.split('id="noise"', 1)[1].split("</table>", 1)[0]
+    assert noise.count('<tr data-sensor="camera1">') == 2  # lateral, depth
+    assert "mm at 1 m" in noise and "<td class=\"text\">azimuth</td>" in noise
+
+
+def test_an_undetermined_result_says_so_first(sim):
+    from rigcal.problem.consistency import Check, Verdict
+
+    result = _truth_result(sim)
+    undetermined = CalibrationResult(**{**result.__dict__, "verdict": Verdict((Check("determined", "undetermined", "radar1: yaw"),))})
+    html = render_report(json.loads(report_json_text(calibration_report(undetermined, sim.dataset))))
+    head = html.split('id="poses"', 1)[0]
+    assert "UNDETERMINED: the data do not determine every pose" in head
+    assert 'class="verdict undetermined"' in head

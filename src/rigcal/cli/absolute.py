@@ -44,7 +44,7 @@ def add_parser(sub) -> None:
     a.add_argument("--json", action="store_true", help="print absolute.json on stdout")
     a.add_argument(
         "--force", action="store_true",
-        help="write the result even when the relative calibration's consistency check flags it (exit code stays 3)",
+        help="write the result even when the relative calibration is flagged or undetermined (exit code stays 3 or 5)",
     )
     a.set_defaults(func=run)
 
@@ -59,7 +59,6 @@ def run(args, console) -> int:
     from rigcal.absolute.evaluate import ground_normal_angle
     from rigcal.absolute.labels import parse_labels_csv, parse_labels_yaml
     from rigcal.absolute.pipeline import absolute_calibration
-    from rigcal.cli.codes import EXIT_FLAGGED
     from rigcal.cli.output import not_written, pose_table, verdict_lines
     from rigcal.errors import InputError
     from rigcal.io._text import read_text
@@ -67,7 +66,7 @@ def run(args, console) -> int:
     from rigcal.io.results.report import write_report
     from rigcal.report.data import absolute_report
     from rigcal.io.atomic import staged_folder
-    from rigcal.cli.calibrate import initial_poses_from
+    from rigcal.cli.calibrate import exit_code, initial_poses_from
     from rigcal.problem.calibrate import CalibrationOptions
     from rigcal.io.dataset.manifest import load_manifest
     from rigcal.io.clouds import read_point_cloud
@@ -94,8 +93,9 @@ def run(args, console) -> int:
     )
     ground = {name: ground_normal_angle(pts, result.T_body_sensor(name)) for name, pts in checks}
     verdict_lines(result.relative, console)
-    if result.relative.flagged and not args.force:
-        return not_written(console, "the relative calibration")
+    code = exit_code(result.relative)  # 3 flagged, 5 undetermined (--force writes either)
+    if code and not args.force:
+        return not_written(console, "the relative calibration", code=code)
     with staged_folder(args.out) as stage:
         write_absolute(result, stage)
         write_report(absolute_report(result, dataset), stage)
@@ -115,4 +115,4 @@ def run(args, console) -> int:
     for w in result.warnings:
         console.print(f"[yellow]warning:[/yellow] {w}")
     console.print(f"written to {args.out}/ (absolute.yaml, absolute.json, launch files, report.html)")
-    return EXIT_FLAGGED if result.relative.flagged else 0
+    return code

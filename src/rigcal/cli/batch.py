@@ -10,7 +10,8 @@ the DIRs is skipped with a note; a dataset that is not there, cannot be read or 
 whose output folder is taken is reported and skipped; a summary table ends the run. A lost
 worker's datasets run again; a lost scheduler ends the run with one line naming the datasets
 not calibrated (the others are written). Exit code: 0 all written and consistent; 3 some
-flagged; 4 some failed or missing (the rest written); 1 none calibrated.
+flagged; 5 some undetermined (none flagged); 4 some failed or missing (the rest written); 1 none
+calibrated.
 """
 
 from __future__ import annotations
@@ -18,11 +19,12 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from rigcal.cli.codes import EXIT_FLAGGED, EXIT_PARTIAL
+from rigcal.cli.codes import EXIT_FLAGGED, EXIT_PARTIAL, EXIT_UNDETERMINED
 from rigcal.errors import InputError, printable
 
 #: statuses of a written dataset (:func:`rigcal.fleet.run_fleet` adds failed and missing)
 WRITTEN, FORCED, NOT_WRITTEN = "written", "flagged, written (--force)", "flagged, not written"
+UNDETERMINED_FORCED, UNDETERMINED_NOT_WRITTEN = "undetermined, written (--force)", "undetermined, not written"
 
 
 def calibrate_task(options, dataset):
@@ -72,7 +74,7 @@ def _check_out(out: Path, entries) -> list:
 def run_batch(args, console) -> int:
     import json
 
-    from rigcal.cli.calibrate import options_from
+    from rigcal.cli.calibrate import exit_code, options_from
     from rigcal.cli.output import progress_bar, table
     from rigcal.fleet import FAILED, MISSING, fleet_entries, run_fleet
     from rigcal.io.atomic import staged_folder
@@ -98,11 +100,12 @@ def run_batch(args, console) -> int:
                          for a in args.batch[:3]) + (", ..." if len(args.batch) > 3 else "") + ")")
 
     def write(entry, dataset, result) -> str:
-        if result.flagged and not args.force:
-            return NOT_WRITTEN
+        code = exit_code(result)
+        if code and not args.force:
+            return NOT_WRITTEN if code == EXIT_FLAGGED else UNDETERMINED_NOT_WRITTEN
         with staged_folder(out / entry.name) as stage:
             write_calibration_set(result, dataset, stage)
-        return FORCED if result.flagged else WRITTEN
+        return {0: WRITTEN, EXIT_FLAGGED: FORCED}.get(code, UNDETERMINED_FORCED)
 
     with progress_bar(console) as bar:
         task = bar.add_task("calibrating", total=len(entries), unit="datasets")
@@ -123,15 +126,19 @@ def run_batch(args, console) -> int:
         sys.stdout.write(json.dumps(doc, indent=1) + "\n")
     failed = [o for o in run.outcomes if o.status in (FAILED, MISSING)]
     flagged = [o for o in run.outcomes if o.status in (NOT_WRITTEN, FORCED)]
-    written = [o for o in run.outcomes if o.status in (WRITTEN, FORCED)]
-    console.print(f"{len(entries) - len(failed) - len(flagged)} consistent, {len(flagged)} flagged, "
-                  f"{len(failed)} failed; results in {printable(out)}/<dataset>/", markup=False, soft_wrap=True)
+    undetermined = [o for o in run.outcomes if o.status in (UNDETERMINED_NOT_WRITTEN, UNDETERMINED_FORCED)]
+    written = [o for o in run.outcomes if o.status in (WRITTEN, FORCED, UNDETERMINED_FORCED)]
+    console.print(f"{len(entries) - len(failed) - len(flagged) - len(undetermined)} consistent, {len(flagged)} "
+                  f"flagged, {len(undetermined)} undetermined, {len(failed)} failed; results in "
+                  f"{printable(out)}/<dataset>/", markup=False, soft_wrap=True)
     if failed:  # one line on stderr says what is missing
         sys.stderr.write(f"rigcal: error: {_missing_line(run, failed, written, out, args.scheduler)}\n")
     if len(failed) == len(entries):
         return 1
     if flagged:
         return EXIT_FLAGGED
+    if undetermined:
+        return EXIT_UNDETERMINED
     return EXIT_PARTIAL if failed else 0
 
 

@@ -21,10 +21,12 @@ EPILOG = """examples:
 writes calibration.yaml, <sensor>.yaml, calibration.launch and report.html (open it in a
 browser: verdict, poses, residuals, 3D detections, coverage; works offline)
 
-exit codes: 0 consistent result written; 1 error; 2 usage; 3 the result contradicts its own
-noise model (nothing written unless --force); with --batch: 4 some datasets failed or were
-lost with the scheduler (the others are written; one line names them), 3 some were flagged,
-1 all failed
+exit codes: 0 consistent result written; 1 error; 2 usage; 3 flagged: the result contradicts
+its own noise model, or a named mistake in the input (nothing written unless --force); 5
+undetermined: a sensor's pose not determined to its kind's bound (--max-std; nothing written
+unless --force); with --batch: 4 some datasets failed or were lost with the scheduler (the
+others are written; one line names them), 3 some were flagged, 5 some undetermined, 1 all
+failed
 """
 
 #: --scheduler's help (:mod:`rigcal.study.scale`; not imported by the parser)
@@ -100,7 +102,14 @@ def add_parser(sub) -> None:
     )
     c.add_argument(
         "--force", action="store_true",
-        help="write the result even when the consistency check flags it (exit code stays 3)",
+        help="write the result even when the consistency check flags it or a pose is undetermined "
+        "(the exit code stays 3 / 5)",
+    )
+    c.add_argument(
+        "--max-std", action="append", default=[], metavar="[KIND:]MM/DEG",
+        help="largest std of a determined pose, per sensor kind or for all (repeatable; default "
+        "50/1 for lidar, camera and radar3d, 100/2 for a 2D radar's in-plane pose), e.g. "
+        "--max-std radar:150/3",
     )
     c.set_defaults(func=run)
 
@@ -154,8 +163,15 @@ def options_from(args, dataset=None):
             raise InputError(f"--prior {text!r}: a second prior for '{sensor}'")
         else:
             per_sensor[sensor] = prior
+    from rigcal.problem.determined import DETERMINED_BOUND, parse_bound
+
+    bounds: dict[str, tuple[float, float]] = {}
+    for text in getattr(args, "max_std", None) or []:
+        kind, bound = parse_bound(text)
+        bounds.update({k: bound for k in DETERMINED_BOUND} if kind is None else {kind: bound})
     return CalibrationOptions(
         mode=args.mode,
+        max_std=bounds or None,
         reference=args.reference,
         detect_outliers=not args.keep_outliers,
         hold_radar_plane=args.hold_radar_plane,
@@ -176,7 +192,7 @@ def run(args, console) -> int:
         from rigcal.errors import InputError
 
         raise InputError("--scheduler applies to --batch only (one dataset is calibrated in this process)")
-    from rigcal.cli.codes import EXIT_FLAGGED
+    from rigcal.cli.codes import EXIT_FLAGGED, EXIT_UNDETERMINED
     from rigcal.cli.detect import detect_recording
     from rigcal.cli.output import not_written, summary
     from rigcal.errors import InputError
@@ -228,9 +244,10 @@ def run(args, console) -> int:
     urdf = initial_urdf(args)
     result = calibrate(dataset, options_from(args, dataset))
     clock.lap(f"calibration ({result.mode.upper()}, reference {result.reference}, verdict {result.verdict.status if result.verdict else 'not checked'})")
-    if result.flagged and not args.force:
+    code = exit_code(result)
+    if code and not args.force:
         summary(result, console)
-        code = not_written(console)
+        code = not_written(console, code=code)
         if detection is not None:
             rerun_hint(args, kept if args.keep_detections else None, dataset, console)
         return code
@@ -263,10 +280,22 @@ def run(args, console) -> int:
 
         for line in bounded_lines(calibration_transforms(result), frame_plan(result, urdf), args.initial):
             console.print(line, markup=False, highlight=False, soft_wrap=True)
-    console.print(f"results written to {args.out}/" + (" (FLAGGED, written with --force)" if result.flagged else ""))
+    forced = {EXIT_FLAGGED: " (FLAGGED, written with --force)",
+              EXIT_UNDETERMINED: " (UNDETERMINED, written with --force)"}
+    console.print(f"results written to {args.out}/" + forced.get(code, ""))
     if detection is not None:
         rerun_hint(args, kept, dataset, console)
-    return EXIT_FLAGGED if result.flagged else 0
+    return code
+
+
+def exit_code(result) -> int:
+    """0, or the exit code of a flagged (3, first) or undetermined (5) result."""
+    from rigcal.cli.codes import EXIT_FLAGGED, EXIT_UNDETERMINED
+
+    if result.flagged:
+        return EXIT_FLAGGED
+    v = getattr(result, "verdict", None)
+    return EXIT_UNDETERMINED if v is not None and v.status == "undetermined" else 0
 
 
 #: where ``calibrate RECORDING --rig`` keeps the detections inside --out

@@ -1,9 +1,9 @@
 """Exit codes of the ``rigcal`` command (light: imported before any command runs).
 
 0 calibrated and consistent; 1 error (bad input, or the data cannot determine the result);
-2 command-line usage; 3 flagged; 4 partial; 6 moved (``rigcal check`` / ``diff``: a sensor moved);
-7 cannot tell (``check`` / ``diff``: no sensor moved, but some could not be told); 130 interrupted
-(Ctrl-C); 143 terminated (SIGTERM).
+2 command-line usage; 3 flagged; 4 partial; 5 undetermined; 6 moved (``rigcal check`` / ``diff``:
+a sensor moved); 7 cannot tell (``check`` / ``diff``: no sensor moved, but some could not be told);
+130 interrupted (Ctrl-C); 143 terminated (SIGTERM).
 """
 
 from __future__ import annotations
@@ -12,6 +12,8 @@ from __future__ import annotations
 EXIT_FLAGGED = 3
 #: exit code of a partial result: some sensors calibrated (and written), others not (rigcal mocap)
 EXIT_PARTIAL = 4
+#: exit code of a result with a sensor whose pose the data do not determine to its kind's bound
+EXIT_UNDETERMINED = 5
 #: exit code of ``rigcal check`` / ``rigcal diff`` when a sensor moved (the calibration is stale)
 EXIT_MOVED = 6
 #: exit code of ``rigcal check`` / ``rigcal diff`` when no sensor moved but some cannot be told
@@ -25,8 +27,9 @@ EXIT_CODES_HELP = f"""exit codes:
   0    calibrated (or written) and consistent
   1    error: bad input, or the data cannot determine the result (one line on stderr)
   2    command-line usage
-  {EXIT_FLAGGED}    flagged: the result contradicts its own noise model (nothing written unless --force)
+  {EXIT_FLAGGED}    flagged: the result contradicts its own noise model, or a named mistake in the input (nothing written unless --force)
   {EXIT_PARTIAL}    partial (rigcal mocap): the other sensors calibrated and written, some not
+  {EXIT_UNDETERMINED}    undetermined: a sensor's pose not determined to its kind's bound, --max-std (nothing written unless --force)
   {EXIT_MOVED}    moved (rigcal check / diff): a sensor moved since it was calibrated
   {EXIT_CANNOT_TELL}    cannot tell (rigcal check / diff): nothing moved, but some sensor could not be told
   {EXIT_INTERRUPTED}  interrupted (Ctrl-C); nothing half-written is left

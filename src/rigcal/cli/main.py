@@ -11,9 +11,10 @@ result); 2 command-line usage; 3 the result contradicts its own noise model (fla
 consistency check): nothing is written unless --force, which writes it with the verdict;
 4 partial (``rigcal mocap``): the other sensors were calibrated and written, but at least one
 sensor could not be and is reported as not calibrated with its reason (3 takes precedence);
-6 moved (``rigcal check`` / ``diff``: a sensor moved since it was calibrated); 7 cannot tell
-(``check`` / ``diff``: no sensor moved, but some could not be told); 130 interrupted (Ctrl-C);
-143 terminated (SIGTERM).
+5 undetermined: a sensor's pose is not determined to its kind's bound (nothing written unless
+--force; 3 takes precedence); 6 moved (``rigcal check`` / ``diff``: a sensor moved since it was
+calibrated); 7 cannot tell (``check`` / ``diff``: no sensor moved, but some could not be told);
+130 interrupted (Ctrl-C); 143 terminated (SIGTERM).
 """
 
 from __future__ import annotations

@@ -204,20 +204,26 @@ def verdict_lines(result, console) -> None:
         console.print("[bold red]FLAGGED[/bold red]: the result contradicts its own noise model")
         for c in v.failed:
             console.print(f"  [red]{c.name}[/red]: {c.detail}")
-    else:
+    if v.status in ("flagged", "undetermined") and getattr(v, "undetermined", ()):
+        console.print("[bold red]UNDETERMINED[/bold red]: the data do not determine every pose")
+        for c in v.undetermined:
+            console.print(f"  [red]{c.name}[/red]: {c.detail}")
+    if v.status not in ("flagged", "undetermined"):
         console.print("[bold green]consistent[/bold green]: every check agrees with the noise model")
     for c in v.checks:
         if c.status == "note":
             console.print(f"  note ({c.name}): {c.detail}")
 
 
-def not_written(console, what: str = "the result") -> int:
-    """Say that a flagged result was not written; the exit code for it."""
+def not_written(console, what: str = "the result", code: int = EXIT_FLAGGED) -> int:
+    """Say that a flagged (or undetermined: ``code`` 5) result was not written; the exit code
+    for it."""
+    why = "failed its consistency check" if code == EXIT_FLAGGED else "leaves a pose undetermined"
     console.print(
-        f"[bold red]not written[/bold red]: {what} failed its consistency check "
-        f"(exit code {EXIT_FLAGGED}); --force writes it anyway, with the verdict"
+        f"[bold red]not written[/bold red]: {what} {why} "
+        f"(exit code {code}); --force writes it anyway, with the verdict"
     )
-    return EXIT_FLAGGED
+    return code
 
 
 def summary(result, console, verdict_first: bool = True) -> None:

@@ -12,8 +12,18 @@ from typing import Mapping
 import numpy as np
 
 from rigcal.dataset import Dataset, SensorKind
-from rigcal.errors import ConfigError, ConvergenceError, RigcalError
-from rigcal.problem.consistency import NOTE, Check, noise_check, pair_checks, verdict
+from rigcal.errors import ConfigError, ConvergenceError, InputError, RigcalError
+from rigcal.problem.consistency import (
+    FAIL,
+    NOTE,
+    PLAUSIBLE_NOISE,
+    Check,
+    noise_check,
+    noise_summary,
+    pair_checks,
+    pair_residuals,
+    verdict,
+)
 from rigcal.geometry.se3 import adjoint, invert, se3_exp, se3_log
 from rigcal.problem.configurations import (
     MODES,
@@ -25,10 +35,12 @@ from rigcal.problem.configurations import (
     keep_poses,
     pairs_for_mode,
 )
+from rigcal.problem.determined import determined_check
 from rigcal.problem.evaluate import anchor_errors, evaluate_pairs
 from rigcal.problem.fixedpoint import Anderson
 from rigcal.problem.globalise import solve_global
 from rigcal.problem.initialise import default_reference, initial_poses
+from rigcal.problem.mistakes import input_checks, named_checks
 from rigcal.problem.observability import check_observable
 from rigcal.problem.outliers import OutlierRule, find_outliers
 from rigcal.problem.pairs import all_pairs, pair_data
@@ -111,6 +123,9 @@ class CalibrationOptions:
     #: PSE noise: ``iterated`` (per-sensor, per-axis, re-estimated until converged) or
     #: ``identity`` (1 for every axis of every sensor: the original tool's fixed-noise PSE)
     pse_noise: str = "iterated"
+    #: largest std [m, deg] of a determined pose per sensor kind (``{"radar": (0.1, 2.0)}``);
+    #: kinds not given keep :data:`rigcal.problem.determined.DETERMINED_BOUND`
+    max_std: Mapping[str, tuple[float, float]] | None = None
     #: mounting tolerances for every sensor without its own prior (``{"z_m": 0.01, ...}``)
     prior: Mapping[str, float] | None = None
     #: mounting tolerances per sensor (above the manifest's and ``prior``)
@@ -539,11 +554,12 @@ def _fit_radar_reference(
         cov[6 * j : 6 * j + 6, 6 * j : 6 * j + 6] = Ad @ C_r @ Ad.T
         for v, xi in enumerate(_profile_moves(problems[s], radar, vertices)):
             moves[v, 6 * j : 6 * j + 6] = Ad @ xi
+    gaussian = cov.copy()  # without the moves the radar's tilt allows: what "determined" judges
     if len(vertices):
         cov += moves.T @ moves / len(vertices) / 3.0
     sol = combine_solutions(
         list(sols.values()), poses=poses, covariance=cov, columns=_radar_reference_columns(radar, names),
-        status="every pair converged", extra={"radar_reference": intervals},
+        status="every pair converged", extra={"radar_reference": intervals, "gaussian_covariance": gaussian},
     )
     return _Fit(poses, _merged_radar_problem(dataset, radar, poses, problems), sol, {}, 0, {})
 
@@ -714,19 +730,27 @@ def _calibrate(dataset: Dataset, options: CalibrationOptions) -> CalibrationResu
     mode = options.mode.lower()
     priors = sensor_priors(dataset, reference, options)
     ignored = {s.name: tuple(sorted(s.excluded)) for s in dataset.sensors if s.excluded}
+    # cheap checks of the detections first: a mistake found there is named even when the
+    # solve then fails on it
+    inputs = input_checks(dataset, options.initial)
     clock = StageClock(log)
-    with single_threaded():
-        fit, work, outliers = _fit_screened(dataset, mode, reference, options)
-        clock.lap(f"{mode.upper()} fit with outlier screening"
-                  + (f" ({fit.noise_iterations} noise iterations)" if fit.noise_iterations else ""))
-        rmse, per_board = evaluate_pairs(work, fit.poses)
-        cv = (
-            _cross_validation(work, mode, reference, fit.poses, options)
-            if options.cross_validation_folds
-            else {}
-        )
-        if options.cross_validation_folds:
-            clock.lap(f"cross-validation ({options.cross_validation_folds} folds)")
+    try:
+        with single_threaded():
+            fit, work, outliers = _fit_screened(dataset, mode, reference, options)
+            clock.lap(f"{mode.upper()} fit with outlier screening"
+                      + (f" ({fit.noise_iterations} noise iterations)" if fit.noise_iterations else ""))
+            rmse, per_board = evaluate_pairs(work, fit.poses)
+            cv = (
+                _cross_validation(work, mode, reference, fit.poses, options)
+                if options.cross_validation_folds
+                else {}
+            )
+            if options.cross_validation_folds:
+                clock.lap(f"cross-validation ({options.cross_validation_folds} folds)")
+    except RigcalError as exc:
+        if inputs.status == FAIL:
+            raise InputError(f"{inputs.detail} (the calibration then failed: {exc})") from None
+        raise
     units = detection_units(work)
     if "radar_reference" in fit.solution.extra:
         sol, bounded, theta = fit.solution, {}, _theta_all_pairs(work, fit.poses, reference, units)
@@ -741,16 +765,11 @@ def _calibrate(dataset: Dataset, options: CalibrationOptions) -> CalibrationResu
         for name, std in stds.items() if name != reference
     }
     warnings = _warnings(work, mode, reference, fit, options, weak, bounded)
-    pair_check, board_check, _ = pair_checks(
-        work, fit.poses, reference, units, theta, sol.joint_covariance, options.outlier_rule
-    )
     noise_model = theta_by_sensor(units, theta)
-    result_verdict = verdict(
-        pair_check, board_check, sol.rank_deficient,
-        {name: sensor_bounded_values(fit.poses[name], stds[name], iv, sol.extra.get("bounded_sets", {}).get(name))
-         for name, iv in bounded.items()},
-        weak, noise_check(work, noise_model),
-    )
+    bounded_values = {name: sensor_bounded_values(fit.poses[name], stds[name], iv, sets.get(name))
+                      for name, iv in bounded.items()}
+    result_verdict = _verdict(dataset, work, fit, units, sol, outliers, options, reference, stds, bounded_values,
+                              weak, inputs, priors)
     clock.lap(f"consistency checks ({result_verdict.status})")
     if "radar_reference" in sol.extra:
         intervals = sol.extra["radar_reference"]
@@ -809,6 +828,56 @@ def _calibrate(dataset: Dataset, options: CalibrationOptions) -> CalibrationResu
         noise_model=noise_model,
         verdict=result_verdict,
         joint_covariance=None if "radar_reference" in sol.extra else sol.joint_covariance(list(sensors)),
+    )
+
+
+def _verdict(dataset: Dataset, work: Dataset, fit: _Fit, units: DetectionUnits, sol: Solution, outliers,
+             options: CalibrationOptions, reference: str, stds, bounded, weak, inputs: Check,
+             priors: Mapping[str, SensorPrior]):
+    """The result's verdict (:mod:`rigcal.problem.consistency`): the input checks, every pair
+    and board against the noise the residuals support, the named mistakes
+    (:mod:`rigcal.problem.mistakes`) and whether every pose is determined
+    (:mod:`rigcal.problem.determined`)."""
+    residuals = pair_residuals(work, fit.poses, reference, units, sol.joint_covariance)
+    pair_check, board_check, _ = pair_checks(
+        work, fit.poses, reference, units, None, sol.joint_covariance, options.outlier_rule, residuals
+    )
+    verdict_noise = noise_summary(units, residuals.region) if residuals is not None else {}
+    radar_reference = "radar_reference" in sol.extra
+    # directions a mounting prior holds (tolerance 0, e.g. --hold-radar-plane) are not judged
+    held = {name: tuple(k.split("_")[0] for k, v in p.tolerance.items() if v == 0.0) for name, p in priors.items()}
+    covariances = {s.name: sol.pose_covariance(s.name) for s in dataset.sensors}
+    if radar_reference:
+        # the moves the reference radar's bounded tilt and height allow are bounded, not undetermined
+        gauss = replace(sol, covariance=sol.extra["gaussian_covariance"])
+        covariances = {s.name: gauss.pose_covariance(s.name) for s in dataset.sensors}
+        stds = {n: pose_std(fit.poses[n], c) for n, c in covariances.items()}
+    determined = determined_check(dataset, stds, covariances, reference, options.max_std, radar_reference, held)
+    undetermined = {e.item.split(" ")[0] for e in determined.evidence if not e.statistic <= e.threshold}
+    weak = {k: v for k, v in weak.items() if k not in undetermined}
+    kept = {} if options.detect_outliers else find_outliers(work, fit.poses, options.outlier_rule)
+    tested = residuals
+    if radar_reference and residuals is not None:
+        # the others' height, roll and pitch relative to the reference radar are held at a
+        # guess (decimetres, degrees off): the extra parameters are estimated at the poses a
+        # local joint fit of every pair gives (their test linearises about a least-squares point)
+        sol_all = solve(build_pairwise(work, fit.poses, reference, all_pairs(work)))
+        if sol_all.converged:
+            tested = pair_residuals(work, dict(sol_all.poses), reference, units, sol.joint_covariance)
+    # the tests of an extra parameter leave out sensors the boards leave undetermined (a
+    # linearisation about a pose the boards do not fix says nothing) - not those undetermined
+    # because their noise is implausibly large (a mistake in their detections, to be named)
+    noisy = {s for s in undetermined if any(
+        v["estimate"] > PLAUSIBLE_NOISE[dataset.sensor(s).kind.value].get(c, np.inf)
+        for c, v in verdict_noise.get(s, {}).items())}
+    # 2D radars whose z, roll and pitch are held at the automatic guess, not at a given mounting
+    given = options.initial or {}
+    held_guess = [name for name in priors if dataset.sensor(name).kind == SensorKind.RADAR
+                  and {"z", "roll", "pitch"} <= set(held.get(name, ())) and name not in given]
+    named = named_checks(tested, dataset, outliers, kept, sorted(undetermined - noisy), held_guess)
+    return verdict(
+        pair_check, board_check, sol.rank_deficient, bounded, weak, noise_check(work, verdict_noise),
+        inputs=inputs, named=named, determined=determined, noise_model=verdict_noise,
     )
 
 

@@ -1,43 +1,67 @@
 """Does a calibration agree with its own noise model? The verdict every result carries.
 
-Checks (each ``pass``, ``note`` or ``fail``; any ``fail`` flags the result):
+Checks (each ``pass``, ``note``, ``fail`` or ``undetermined``; any ``fail`` flags the result,
+otherwise any ``undetermined`` makes it undetermined):
 
+* ``inputs``: cheap checks of the detections before the solve - a mirrored hole order, a
+  sensor in the wrong units, a camera's file that is not a camera's view
+  (:mod:`rigcal.problem.mistakes`). A mistake found here is a **fail** named as such.
 * ``pairs``: every comparable sensor pair - also pairs the configuration did not fit (MCPE
-  fits only pairs with the reference) - is compared with what the estimated noise model and
-  the reported pose uncertainty predict for its residuals. Reduced chi-square far above 1
-  (the 1e-4 quantile, and at least 3) means the poses contradict the noise model: **fail**.
+  fits only pairs with the reference) - is compared with what the noise model and the
+  reported pose uncertainty predict for its residuals. The noise model is estimated from every
+  pair's residuals at the result's poses (not from the pairs the mode fitted: MCPE's pairs
+  with the reference alone leave a sensor's share of the noise to the arithmetic, which put
+  it at the floor), each row at the largest variance the data support
+  (:class:`rigcal.problem.noise.NoiseRegion`: a sensor whose share of a pair's noise the data
+  do not tell may carry all of it). Reduced chi-square above the 1e-4 quantile (Bonferroni
+  over the pairs) and above 3 is a **fail**.
 * ``boards``: every (pair, board) the same way, against the noise estimated *without* that
-  board (a bad board inflates the estimate it would be judged by), with the quantile corrected
+  board (a bad board inflates the estimate it would be judged by; each row at the largest
+  variance the other boards support), with the quantile corrected
   for the number of boards tested; a board far off its pair's prediction (and more than 3
   sigma RMS) *and* beyond the outlier rule's physical floor (10 cm, radar pairs 20 cm: a bad
-  detection kept) is a **fail**; one only beyond the noise model is a **note** (real detections are heavier-tailed
-  than a Gaussian).
-* ``noise``: every sensor's estimated noise against what that kind of sensor can plausibly have
-  (:data:`PLAUSIBLE_NOISE`); far above it (a board in the wrong units, a wrong pose the noise
-  estimate absorbed) is a **fail**.
-* ``rank``: a rank-deficient problem leaves directions undetermined: **fail**.
+  detection kept) is a **fail**; one only beyond the noise model is a **note**.
+* ``noise``: every sensor's noise against what that kind of sensor can plausibly have
+  (:data:`PLAUSIBLE_NOISE`); a **fail** only when even the *smallest* noise the data support
+  is above it (a board in the wrong units, a wrong pose the noise estimate absorbed).
+* named mistakes after the solve (:mod:`rigcal.problem.mistakes`): ``scale`` (a sensor's
+  detections too large or small), ``reflector`` (the configured reflector offset, globally or
+  on some boards), ``spacing`` (the configured hole spacing), ``placements`` (a board's
+  detection from another placement), ``swapped`` (two sensors' files, against ``initial``).
+* ``determined``: every sensor's pose determined to the bound of its kind
+  (:data:`DETERMINED_BOUND`): **undetermined** otherwise (also a rank-deficient problem),
+  naming the directions and the placements that would fix them.
 * ``bounded``: directions set by an inequality constraint (a 2D radar's z, roll, pitch) are
-  reported as intervals: **note**.
-* ``weak``: directions whose std is above 5 cm / 1 deg: **note**.
+  reported as intervals: **note** - never undetermined.
 """
 
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Mapping
 
 import numpy as np
 
 from rigcal.dataset import Dataset
 from rigcal.problem.numerics import chi2_isf
-from rigcal.problem.noise import DetectionUnits, estimate_theta, group_design, noise_map, row_batches
+from rigcal.problem.noise import (
+    COMPONENT_UNITS,
+    DetectionUnits,
+    NoiseRegion,
+    estimate_theta,
+    estimate_theta_best,
+    group_design,
+    noise_map,
+    noise_region,
+    row_batches,
+)
 from rigcal.problem.outliers import OutlierRule
 from rigcal.problem.pairs import all_pairs
 from rigcal.problem.residuals import MODEL_RADAR2D
 from rigcal.problem.solver import linearise
 
-PASS, NOTE, FAIL = "pass", "note", "fail"
+PASS, NOTE, FAIL, UNDETERMINED = "pass", "note", "fail", "undetermined"
 #: tail probability of the chi-square tests (Bonferroni-corrected over the items tested)
 ALPHA = 1e-4
 #: a reduced chi-square at or below this never fails (model slack for real detections)
@@ -58,33 +82,66 @@ PLAUSIBLE_NOISE = {
 
 
 @dataclass(frozen=True)
+class Evidence:
+    """One number a check judged: ``item`` (a pair, a sensor, a board), its ``statistic``, the
+    ``threshold`` it was held to and ``what`` they are (e.g. ``reduced chi-square``)."""
+
+    item: str
+    statistic: float
+    threshold: float
+    what: str
+
+    def to_dict(self) -> dict:
+        return {"item": self.item, "statistic": float(self.statistic), "threshold": float(self.threshold),
+                "what": self.what}
+
+
+@dataclass(frozen=True)
 class Check:
-    """One consistency check: its ``name``, ``status`` (pass / note / fail) and what it found."""
+    """One consistency check: its ``name``, ``status`` (pass / note / fail / undetermined),
+    what it found (``detail``) and the numbers it judged (``evidence``)."""
 
     name: str
     status: str
     detail: str
+    evidence: tuple[Evidence, ...] = ()
+
+    def to_dict(self) -> dict:
+        out = {"name": self.name, "status": self.status, "detail": self.detail}
+        if self.evidence:
+            out["evidence"] = [e.to_dict() for e in self.evidence]
+        return out
 
 
 @dataclass(frozen=True)
 class Verdict:
-    """``status``: ``consistent`` (no check failed) or ``flagged``; ``checks`` in order."""
+    """``status``: ``flagged`` (a check failed), ``undetermined`` (no check failed, but some
+    sensor's pose is not determined to its bound) or ``consistent``; ``checks`` in order;
+    ``noise``: the noise model the checks used, ``{sensor: {component: {"estimate", "low",
+    "high", "identified"}}}`` (std: m; camera depth: m at 1 m; angles: deg)."""
 
     checks: tuple[Check, ...] = ()
+    noise: Mapping[str, Mapping[str, Mapping[str, object]]] = field(default_factory=dict)
 
     @property
     def status(self) -> str:
-        return "flagged" if self.failed else "consistent"
+        if self.failed:
+            return "flagged"
+        return "undetermined" if self.undetermined else "consistent"
 
     @property
     def failed(self) -> tuple[Check, ...]:
         return tuple(c for c in self.checks if c.status == FAIL)
 
+    @property
+    def undetermined(self) -> tuple[Check, ...]:
+        return tuple(c for c in self.checks if c.status == UNDETERMINED)
+
     def to_dict(self) -> dict:
-        return {
-            "status": self.status,
-            "checks": [{"name": c.name, "status": c.status, "detail": c.detail} for c in self.checks],
-        }
+        out: dict = {"status": self.status, "checks": [c.to_dict() for c in self.checks]}
+        if self.noise:
+            out["noise"] = {s: {c: dict(v) for c, v in comps.items()} for s, comps in self.noise.items()}
+        return out
 
 
 @functools.lru_cache(maxsize=4096)
@@ -94,28 +151,58 @@ def _limit(dof: int, tests: int) -> float:
     return max(float(q), MIN_FAIL_RATIO)
 
 
-def pair_checks(
+@dataclass(frozen=True, eq=False)  # holds arrays: compare by identity
+class PairResiduals:
+    """Every comparable pair's residuals at a result's poses, linearised, with the noise model
+    estimated from them: what every check after the solve judges.
+
+    ``r`` (rows,) metric residuals in the solver's row order, ``J`` (rows, n) their Jacobian
+    w.r.t. the free pose parameters, ``D`` the noise map, ``M`` the group design,
+    ``pose_var`` (rows,) what the reported pose covariance adds to each row's variance,
+    ``theta`` the group variances estimated from these residuals and ``region`` what the data
+    support (:class:`~rigcal.problem.noise.NoiseRegion`)."""
+
+    dataset: Dataset
+    poses: Mapping[str, np.ndarray]
+    reference: str
+    units: DetectionUnits
+    problem: object
+    layout: object
+    r: np.ndarray
+    J: np.ndarray
+    D: object
+    M: np.ndarray
+    batches: np.ndarray
+    row_board: np.ndarray
+    pose_var: np.ndarray
+    theta: np.ndarray
+    region: NoiseRegion
+
+    @property
+    def predicted(self) -> np.ndarray:
+        """(rows,) each row's variance under the estimated noise, pose uncertainty included."""
+        return self.M @ self.theta + self.pose_var
+
+
+def pair_residuals(
     dataset: Dataset,
     poses: Mapping[str, np.ndarray],
     reference: str,
     units: DetectionUnits,
-    theta: np.ndarray,
     joint_covariance,
-    rule: OutlierRule = OutlierRule(),
-) -> tuple[Check, Check, dict[str, float]]:
-    """The ``pairs`` and ``boards`` checks, and the reduced chi-square per pair.
-
-    ``theta``: the noise model's group variances over ``units`` (the dataset's
-    :func:`rigcal.problem.noise.detection_units`); ``joint_covariance(names)``: the
-    result's joint covariance of those sensors' right perturbations."""
+    theta: np.ndarray | None = None,
+) -> PairResiduals | None:
+    """:class:`PairResiduals` of ``dataset`` at ``poses`` (None: no comparable pair).
+    ``joint_covariance(names)``: the result's joint covariance of those sensors' right
+    perturbations; ``theta``: use these group variances instead of estimating them."""
     from rigcal.problem.configurations import build_pairwise
 
-    pairs = all_pairs(dataset)
-    problem = build_pairwise(dataset, poses, reference, pairs)
+    problem = build_pairwise(dataset, poses, reference, all_pairs(dataset))
     if not problem.observations:
-        return Check("pairs", PASS, "no comparable pairs"), Check("boards", PASS, "-"), {}
+        return None
     r, J, _, _, layout = linearise(problem)  # unit sigma: r is metric
-    M = group_design(noise_map(problem, dataset, units), units)
+    D = noise_map(problem, dataset, units)
+    M = group_design(D, units)
     pose_var = np.zeros(r.size)
     names = [n for n in layout.names if np.any(layout.cols[layout.index[n]] >= 0)]
     if names:
@@ -124,29 +211,70 @@ def pair_checks(
         keep = cols >= 0
         C = np.zeros((layout.n_free, layout.n_free))
         C[np.ix_(cols[keep], cols[keep])] = C6[np.ix_(keep, keep)]
-        pose_var = np.einsum("ij,jk,ik->i", J, C, J)
-    z2 = r**2 / np.maximum(M @ theta + pose_var, 1e-30)
+        pose_var = np.maximum(np.einsum("ij,jk,ik->i", J, C, J), 0.0)
+    batches = row_batches(problem)
+    m, n = J.shape
+    if theta is None:
+        # the poses absorbed up to n of the m residual degrees of freedom; the reweighting
+        # round whose estimate the residuals' likelihood prefers (the rounds can wander along a
+        # weak split: 3 lidars with random yaw, two lidars' y noise at the floor after three)
+        theta = estimate_theta_best(r, M, m / max(m - n, 1), batches=batches)
+    row_board = np.concatenate([np.repeat(b.board, b.dim) for b in problem.observations])
+    return PairResiduals(dataset, poses, reference, units, problem, layout, r, J, D, M, batches, row_board,
+                         pose_var, np.asarray(theta, dtype=float), noise_region(M, theta))
+
+
+def pair_checks(
+    dataset: Dataset,
+    poses: Mapping[str, np.ndarray],
+    reference: str,
+    units: DetectionUnits,
+    theta: np.ndarray | None,
+    joint_covariance,
+    rule: OutlierRule = OutlierRule(),
+    residuals: PairResiduals | None = None,
+) -> tuple[Check, Check, dict[str, float]]:
+    """The ``pairs`` and ``boards`` checks, and the reduced chi-square per pair.
+
+    ``theta``: the noise model's group variances over ``units`` (None: estimated from every
+    pair's residuals at ``poses``); ``joint_covariance(names)``: the result's joint covariance
+    of those sensors' right perturbations; ``residuals``: already linearised."""
+    res = residuals if residuals is not None else pair_residuals(dataset, poses, reference, units,
+                                                                 joint_covariance, theta)
+    if res is None:
+        return Check("pairs", PASS, "no comparable pairs"), Check("boards", PASS, "-"), {}
+    problem, r, M, pose_var = res.problem, res.r, res.M, res.pose_var
+    m, n = res.J.shape
+    z2 = r**2 / np.maximum(res.predicted, 1e-30)
     # each board against the noise estimated without it (a bad board inflates the noise
     # estimate it would otherwise be judged by)
-    batches = row_batches(problem)
-    row_board = np.concatenate([np.repeat(b.board, b.dim) for b in problem.observations])
+    # each row at the largest variance the data support (a sensor's weak share of a pair's
+    # noise may be all of it)
+    row_upper = res.region.upper_rows(M)
     z2_deleted = np.empty_like(z2)
-    for k in np.unique(row_board):
-        out = row_board == k
-        theta_k = estimate_theta(r[~out], M[~out], 1.0, batches=batches[~out])
-        z2_deleted[out] = r[out] ** 2 / np.maximum(M[out] @ theta_k + pose_var[out], 1e-30)
+    for k in np.unique(res.row_board):
+        out = res.row_board == k
+        theta_k = estimate_theta(r[~out], M[~out], m / max(m - n, 1), batches=res.batches[~out])
+        var_k = noise_region(M[~out], theta_k).upper_rows(M[out]) + pose_var[out]
+        z2_deleted[out] = r[out] ** 2 / np.maximum(var_k, 1e-30)
     ratios: dict[str, float] = {}
+    evidence: list[Evidence] = []
     bad_pairs, bad_boards, odd_boards = [], [], []
     n_boards = sum(len(np.unique(b.board)) for b in problem.observations)
     row0 = 0
     for b in problem.observations:
         rows = slice(row0, row0 + b.size * b.dim)
-        zb = z2[rows].reshape(b.size, b.dim)
         row0 += b.size * b.dim
-        ratio = float(np.mean(zb))
+        # the pair against the largest noise the data support: the noise is estimated from
+        # every pair's residuals (a pair the mode did not fit included), so the pair's own sum
+        # of squares is fitted directly - how it splits between the sensors does not matter
+        z2_pair = r[rows] ** 2 / np.maximum(row_upper[rows] + pose_var[rows], 1e-30)
+        ratio = float(np.mean(z2_pair))
+        limit = _limit(int(z2_pair.size), len(problem.observations))
         ratios[b.label] = ratio
-        if ratio > _limit(zb.size, len(problem.observations)):
-            bad_pairs.append(f"{b.label} (reduced chi-square {ratio:.1f})")
+        evidence.append(Evidence(b.label, ratio, limit, "reduced chi-square"))
+        if ratio > limit:
+            bad_pairs.append(f"{b.label} (reduced chi-square {ratio:.1f}, limit {limit:.1f})")
         zdel = z2_deleted[rows].reshape(b.size, b.dim)
         rb = r[rows].reshape(b.size, b.dim)
         floor = rule.floor_radar_m if b.model == MODEL_RADAR2D or b.dim == 2 else rule.floor_3d_m
@@ -163,10 +291,10 @@ def pair_checks(
     pair_check = (
         Check("pairs", FAIL, "residuals far above the noise model: " + "; ".join(bad_pairs)
               + " - the poses contradict the sensors' noise (a wrong pose, or a reference that "
-              "cannot determine it)")
+              "cannot determine it)", tuple(evidence))
         if bad_pairs
         else Check("pairs", PASS, "every pair within its noise model: reduced chi-square "
-                   + ", ".join(f"{k} {v:.2f}" for k, v in ratios.items()))
+                   + ", ".join(f"{k} {v:.2f}" for k, v in ratios.items()), tuple(evidence))
     )
     board_check = (
         Check("boards", FAIL, "boards far off their pair's prediction: " + "; ".join(bad_boards[:8])
@@ -182,21 +310,50 @@ def pair_checks(
     return pair_check, board_check, ratios
 
 
-def noise_check(dataset: Dataset, noise_model: Mapping[str, Mapping[str, float]]) -> Check:
-    """The ``noise`` check: ``noise_model`` (:func:`rigcal.problem.noise.theta_by_sensor`)
-    against :data:`PLAUSIBLE_NOISE`."""
-    bad = []
+def _show(comp: str, std: float) -> str:
+    return f"{std:.2f} deg" if COMPONENT_UNITS[comp] == "deg" else f"{std * 1000:.0f} mm"
+
+
+def noise_summary(units: DetectionUnits, region: NoiseRegion) -> dict[str, dict[str, dict[str, object]]]:
+    """The noise model per sensor and component: estimate, the lowest and highest std the data
+    support, and whether the data identify it (its std known within a factor of 2, or below
+    1 mm / 0.01 deg)."""
+    low, high = region.group_bounds()
+    out: dict[str, dict[str, dict[str, object]]] = {}
+    for (sensor, comp), th, lo, hi in zip(units.groups, region.theta, low, high):
+        deg = COMPONENT_UNITS[comp] == "deg"
+        conv = (lambda v: float(np.degrees(np.sqrt(max(v, 0.0))))) if deg else (lambda v: float(np.sqrt(max(v, 0.0))))
+        est, lo_s, hi_s = conv(th), conv(lo), conv(hi)
+        small = 0.01 if deg else 0.001
+        identified = bool(hi_s <= max(2.0 * est, small))
+        out.setdefault(sensor, {})[comp] = {"estimate": est, "low": lo_s, "high": hi_s, "identified": identified}
+    return out
+
+
+def noise_check(
+    dataset: Dataset,
+    noise_model: Mapping[str, Mapping[str, object]],
+) -> Check:
+    """The ``noise`` check: the smallest noise the data support per sensor and component
+    (``noise_model``: :func:`noise_summary`, or plain ``{sensor: {component: std}}``) against
+    :data:`PLAUSIBLE_NOISE`."""
+    bad, evidence = [], []
     for name, comps in noise_model.items():
         limits = PLAUSIBLE_NOISE[dataset.sensor(name).kind.value]
         for comp, value in comps.items():
-            if value > limits[comp]:
-                unit = "deg" if comp in ("azimuth", "elevation") else "mm"
-                show = (lambda v: f"{v:.2f}") if unit == "deg" else (lambda v: f"{v * 1000:.0f}")
-                bad.append(f"{name} {comp} {show(value)} {unit} (plausible: up to {show(limits[comp])} {unit})")
+            if comp not in limits:
+                continue
+            low = float(value["low"]) if isinstance(value, Mapping) else float(value)
+            evidence.append(Evidence(f"{name} {comp}", low, limits[comp],
+                                     "smallest supported std (" + ("deg" if COMPONENT_UNITS[comp] == "deg" else "m")
+                                     + (" at 1 m" if comp == "depth" else "") + ")"))
+            if low > limits[comp]:
+                bad.append(f"{name} {comp} at least {_show(comp, low)} (plausible: up to {_show(comp, limits[comp])})")
     if bad:
         return Check("noise", FAIL, "noise implausible for the sensor: " + "; ".join(bad)
-                     + " - bad detections absorbed by the noise estimate, wrong units, or a wrong pose")
-    return Check("noise", PASS, "every sensor's noise is plausible for its kind")
+                     + " - bad detections absorbed by the noise estimate, wrong units, or a wrong pose",
+                     tuple(evidence))
+    return Check("noise", PASS, "every sensor's noise is plausible for its kind", tuple(evidence))
 
 
 def verdict(
@@ -206,18 +363,28 @@ def verdict(
     bounded: Mapping[str, Mapping[str, tuple[float, float, float]]],
     weak: Mapping[str, list[str]],
     noise: Check | None = None,
+    *,
+    inputs: Check | None = None,
+    named: tuple[Check, ...] = (),
+    determined: Check | None = None,
+    noise_model: Mapping | None = None,
 ) -> Verdict:
-    """The checks' verdict; ``bounded``: per sensor, its bounded directions as absolute
-    ``(low, high, estimate)`` (:func:`rigcal.problem.uncertainty.absolute_bounds`)."""
-    checks = [pair_check, board_check] + ([noise] if noise is not None else [])
+    """The verdict from its checks, in order: inputs, pairs, boards, noise, the named mistakes,
+    rank (undetermined when deficient), determined, bounded (a note), weak (a note; directions
+    the ``determined`` check did not already judge). ``bounded``: per sensor, its bounded
+    directions as absolute ``(low, high, estimate)`` (:func:`rigcal.problem.uncertainty.absolute_bounds`)."""
+    checks = ([inputs] if inputs is not None else []) + [pair_check, board_check]
+    checks += ([noise] if noise is not None else []) + list(named)
     only = ", ".join(s for s, iv in bounded.items() if iv)
     checks.append(
-        Check("rank", FAIL, "the problem is rank deficient: some directions are not determined "
-              "by the boards") if rank_deficient
+        Check("rank", UNDETERMINED, "the problem is rank deficient: some directions are not "
+              "determined by the boards") if rank_deficient
         else Check("rank", PASS, f"every direction determined except those of {only} that the field of "
                    "view only bounds (see bounded)")
         if only else Check("rank", PASS, "every direction determined")
     )
+    if determined is not None:
+        checks.append(determined)
     if bounded:
         from rigcal.problem.uncertainty import format_bounded
 
@@ -227,7 +394,7 @@ def verdict(
     weak_items = {s: w for s, w in weak.items() if w}
     if weak_items:
         checks.append(Check("weak", NOTE, "; ".join(f"{s}: {', '.join(w)}" for s, w in weak_items.items())))
-    return Verdict(tuple(checks))
+    return Verdict(tuple(checks), dict(noise_model or {}))
 
 
 #: a motion-capture sensor whose residuals scatter by more than this many times its configured
@@ -272,15 +439,20 @@ def mocap_verdict(fit, weak: Mapping[str, list[str]] = {}) -> Verdict:  # noqa: 
 
 __all__ = [
     "Check",
+    "Evidence",
     "FAIL",
     "MOCAP_MIN_MATCH",
     "MOCAP_NOISE_RATIO",
     "NOTE",
     "PASS",
     "PLAUSIBLE_NOISE",
+    "PairResiduals",
+    "UNDETERMINED",
     "Verdict",
     "mocap_verdict",
     "noise_check",
+    "noise_summary",
     "pair_checks",
+    "pair_residuals",
     "verdict",
 ]

@@ -249,11 +249,14 @@ def estimate_theta(
     dof_factor: float,
     floor: float = THETA_FLOOR,
     batches: np.ndarray | None = None,
+    rounds: int = 3,
 ) -> np.ndarray:
     """Group variances from squared metric residuals: ``r_i^2 * dof_factor ~ M theta``.
 
     Non-negative least squares, each row weighted by the inverse square of its predicted
-    variance (``Var(r^2) = 2 E[r^2]^2``), three rounds. The prediction is clamped from below at a
+    variance (``Var(r^2) = 2 E[r^2]^2``), ``rounds`` rounds (1: each row weighted by its
+    batch's mean square alone - the most stable where the data leave splits weak, which
+    later rounds let wander). The prediction is clamped from below at a
     tenth of the mean square of the row's batch (``batches[i]``: a pair or sensor; default one
     batch): a group the first rounds set to zero cannot make its rows' weights explode, and a
     precise pair (lidar-lidar) weighs as much as a noisy one (camera-radar) from the start.
@@ -270,7 +273,7 @@ def estimate_theta(
     Mu = M[:, used]
     pred = np.maximum(level[b], 1e-30)  # first round: each batch at its own scale
     th = np.zeros(Mu.shape[1])
-    for _ in range(3):
+    for _ in range(max(int(rounds), 1)):
         sw = 1.0 / np.maximum(pred, low)
         A = Mu * sw[:, None]
         col = np.maximum(np.sqrt(np.sum(A**2, axis=0)), 1e-300)
@@ -279,6 +282,31 @@ def estimate_theta(
         pred = Mu @ th
     theta[used] = np.maximum(th, floor)
     return theta
+
+
+def estimate_theta_best(
+    r_metric: np.ndarray,
+    M: np.ndarray,
+    dof_factor: float,
+    batches: np.ndarray | None = None,
+    rounds: int = 8,
+    floor: float = THETA_FLOOR,
+) -> np.ndarray:
+    """:func:`estimate_theta` after 1, 2, ... ``rounds`` rounds, keeping the estimate with the
+    highest Gaussian likelihood of the residuals (``r_i ~ N(0, M_i theta)``): the reweighting
+    can wander along a direction the data hardly tell (three lidars with random yaw: after
+    three rounds two lidars' y noise sat at the floor and a third's doubled, a likelihood
+    worse than the first round's) - the likelihood says which iterate the data prefer."""
+    y = np.asarray(r_metric, dtype=float) ** 2 * dof_factor
+    used = np.any(M > 0, axis=0)
+    best, best_nll = None, np.inf
+    for k in range(1, max(int(rounds), 1) + 1):
+        theta = estimate_theta(r_metric, M, dof_factor, floor=floor, batches=batches, rounds=k)
+        pred = np.maximum(M[:, used] @ theta[used], 1e-30) if np.any(used) else np.ones(y.size)
+        nll = float(np.sum(np.log(pred) + y / pred))
+        if nll < best_nll:
+            best, best_nll = theta, nll
+    return best
 
 
 def theta_by_sensor(units: DetectionUnits, theta: np.ndarray) -> dict[str, dict[str, float]]:
@@ -312,6 +340,126 @@ def sandwich(
     return Ainv, 0.5 * (C + C.T)
 
 
+#: an estimated noise direction whose relative standard error is above this is *weak*: the
+#: data do not tell it (e.g. how a pair's noise splits between its two sensors)
+WEAK_RELATIVE_SE = 0.5
+#: width of the confidence band of the identified directions, in standard errors
+NOISE_BAND_Z = 2.0
+#: the squared residuals of pairs that share a detection are correlated: the information of
+#: the noise regression is divided by this (its standard errors widened by its square root)
+NOISE_INFO_DEFLATION = 2.0
+
+
+@dataclass(frozen=True, eq=False)  # holds arrays: compare by identity
+class NoiseRegion:
+    """The group variances the residuals support: the estimate ``theta`` and, for any linear
+    function ``c . theta`` (a pair's predicted sum of squares, a test statistic's variance),
+    the largest and smallest value the data allow (:meth:`upper`, :meth:`lower`).
+
+    The regression of squared residuals on the groups (:func:`estimate_theta`) has Fisher
+    information ``F = M' diag(1 / (2 pred^2)) M``. In relative units (each group scaled by its
+    estimate) its eigenvectors are the directions the data determine (eigenvalue ``lam``:
+    relative standard error ``1 / sqrt(lam)``) and the *weak* ones (relative standard error
+    above :data:`WEAK_RELATIVE_SE`) - typically how the noise of a pair splits between its two
+    sensors when no third sensor closes a loop. A determined direction moves within
+    :data:`NOISE_BAND_Z` standard errors; a weak one as far as every group stays non-negative
+    (so a sensor may carry all of a pair's noise, never more). Never a value at the floor
+    that only the arithmetic chose.
+    """
+
+    theta: np.ndarray
+    scale: np.ndarray  # (groups,) relative units
+    values: np.ndarray  # eigenvalues of the scaled information (determined directions)
+    vectors: np.ndarray  # (groups, d) their eigenvectors
+    weak: np.ndarray  # (groups, w) weak eigenvectors
+    weak_range: np.ndarray  # (w, 2) how far (t_lo <= 0 <= t_hi) each may move theta + t s*v
+
+    def _parts(self, c: np.ndarray) -> tuple[float, float, float, float]:
+        c = np.asarray(c, dtype=float)
+        cs = c * self.scale
+        band = 0.0
+        if self.values.size:
+            band = NOISE_BAND_Z * float(np.sqrt(np.sum((self.vectors.T @ cs) ** 2 / self.values)))
+        proj = self.weak.T @ cs if self.weak.size else np.zeros(0)
+        lo_t, hi_t = (self.weak_range[:, 0], self.weak_range[:, 1]) if proj.size else (np.zeros(0), np.zeros(0))
+        up = float(np.sum(np.maximum(np.maximum(hi_t * proj, lo_t * proj), 0.0)))
+        down = float(np.sum(np.maximum(np.maximum(-hi_t * proj, -lo_t * proj), 0.0)))
+        return float(c @ self.theta), band, up, down
+
+    def upper(self, c: np.ndarray, weak: bool = True) -> float:
+        """The largest ``c . theta`` the data support (``c >= 0``); ``weak=False``: within the
+        band of the determined directions only (for ``c`` the data fit directly, e.g. a pair's
+        own sum of squares, which no weak split changes much)."""
+        mid, band, up, _ = self._parts(c)
+        return mid + band + (up if weak else 0.0)
+
+    def lower(self, c: np.ndarray) -> float:
+        """The smallest ``c . theta`` the data support (at least 0)."""
+        mid, band, _, down = self._parts(c)
+        return max(mid - band - down, 0.0)
+
+    def upper_rows(self, C: np.ndarray) -> np.ndarray:
+        """:meth:`upper` of every row of ``C`` (rows, groups) at once."""
+        C = np.asarray(C, dtype=float)
+        Cs = C * self.scale[None, :]
+        out = C @ self.theta
+        if self.values.size:
+            out = out + NOISE_BAND_Z * np.sqrt(np.sum((Cs @ self.vectors) ** 2 / self.values[None, :], axis=1))
+        if self.weak.size:
+            proj = Cs @ self.weak
+            lo, hi = self.weak_range[:, 0], self.weak_range[:, 1]
+            out = out + np.sum(np.maximum(np.maximum(hi * proj, lo * proj), 0.0), axis=1)
+        return out
+
+    def group_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """(lower, upper) variance of every group."""
+        eye = np.eye(self.theta.size)
+        return (np.array([self.lower(e) for e in eye]), np.array([self.upper(e) for e in eye]))
+
+
+def noise_region(M: np.ndarray, theta: np.ndarray, floor: float = THETA_FLOOR) -> NoiseRegion:
+    """The :class:`NoiseRegion` of the estimate ``theta`` from the group design ``M``
+    (rows x groups; :func:`group_design`). Groups no row depends on stay at their value."""
+    theta = np.asarray(theta, dtype=float)
+    G = theta.size
+    used = np.flatnonzero(np.any(np.asarray(M) > 0, axis=0))
+    empty = np.zeros((G, 0))
+    if used.size == 0:
+        return NoiseRegion(theta, np.ones(G), np.zeros(0), empty, empty, np.zeros((0, 2)))
+    Mu = np.asarray(M)[:, used]
+    th = theta[used]
+    pred = np.maximum(Mu @ th, 1e-30)
+    # relative units: a group at the floor is scaled like the typical group (its estimate
+    # says nothing about its size)
+    typical = float(np.median(th[th > 10 * floor])) if np.any(th > 10 * floor) else 1e-6
+    s = np.maximum(th, 1e-2 * typical)
+    A = Mu * s[None, :] / (np.sqrt(2.0) * pred[:, None])
+    F = (A.T @ A) / NOISE_INFO_DEFLATION
+    lam, V = np.linalg.eigh(0.5 * (F + F.T))
+    strong = lam > 1.0 / WEAK_RELATIVE_SE**2
+    scale = np.ones(G)
+    scale[used] = s
+    vectors = np.zeros((G, int(np.sum(strong))))
+    vectors[used] = V[:, strong]
+    weak = np.zeros((G, int(np.sum(~strong))))
+    weak[used] = V[:, ~strong]
+    ranges = []
+    for v in V[:, ~strong].T:
+        # theta + t s v >= 0 for every group: t between these
+        lo, hi = -np.inf, np.inf
+        for j in range(v.size):
+            step = s[j] * v[j]
+            if step > 1e-12 * s[j]:
+                lo = max(lo, -th[j] / step)
+            elif step < -1e-12 * s[j]:
+                hi = min(hi, th[j] / -step)
+        # a direction that only adds noise everywhere is bounded by the data, not by zero
+        # (it cannot be weak in practice): cap it at 10 relative units
+        ranges.append((lo if np.isfinite(lo) else -10.0, hi if np.isfinite(hi) else 10.0))
+    weak_range = np.array(ranges, dtype=float).reshape(-1, 2)
+    return NoiseRegion(theta, scale, lam[strong], vectors, weak, weak_range)
+
+
 def row_batches(problem) -> np.ndarray:
     """The observation batch (a pair, or a sensor in PSE) of every residual row of
     ``problem``, in the solver's row order (``estimate_theta``'s ``batches``)."""
@@ -324,8 +472,11 @@ __all__ = [
     "COMPONENTS",
     "COMPONENT_UNITS",
     "DetectionUnits",
+    "NoiseRegion",
     "detection_units",
+    "noise_region",
     "estimate_theta",
+    "estimate_theta_best",
     "group_design",
     "noise_map",
     "reflector_jacobians",

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Any
@@ -56,7 +57,20 @@ class BoundedSet:
         g = np.asarray(g, dtype=float).ravel()
         if not np.any(g):
             return 0.0, 0.0
-        vals = self.vertices @ g
+        V = self.vertices
+        if not len(V):  # clipping a degenerate (flat) set can leave no vertex: the two optima
+            from rigcal.problem.numerics import maximise_in_polytope
+
+            A = self.A.reshape(-1, g.size)
+            b = np.maximum(self.b, 0.0)
+            ends = []
+            for sign in (1.0, -1.0):
+                try:
+                    ends.append(float(g @ maximise_in_polytope(sign * g, A, b, self.limit)))
+                except ValueError:  # no limit that way (an infinite box side): unbounded
+                    ends.append(sign * math.inf)
+            return min(ends[1], 0.0), max(ends[0], 0.0)
+        vals = V @ g
         return min(float(vals.min()), 0.0), max(float(vals.max()), 0.0)
 
 

@@ -95,11 +95,43 @@ def _verdict(result: Mapping[str, Any]) -> dict[str, Any]:
     if status == "flagged":
         failed = [c["name"] for c in v.get("checks", []) if c.get("status") == "fail"]
         headline = f"FLAGGED: the result contradicts its own noise model ({', '.join(failed)})"
+    elif status == "undetermined":
+        headline = "UNDETERMINED: the data do not determine every pose to its bound (determined)"
     elif status == "consistent":
         headline = "consistent: every check agrees with the noise model"
     else:
         headline = "not checked"
-    return {"status": status, "headline": headline, "checks": v.get("checks", [])}
+    return {"status": status, "headline": headline, "checks": v.get("checks", []),
+            "evidence": _evidence(v), "noise": _noise_rows(v)}
+
+
+def _evidence(v: Mapping[str, Any]) -> list[dict[str, Any]]:
+    """Per check, the numbers it judged: item, statistic, threshold (a statistic above its
+    threshold is marked)."""
+    out = []
+    for c in v.get("checks", []):
+        rows = [{"item": e.get("item", ""), "statistic": _fmt(e.get("statistic"), ".4g"),
+                 "threshold": _fmt(e.get("threshold"), ".4g"), "what": e.get("what", ""),
+                 "over": bool(abs(e.get("statistic") or 0.0) > (e.get("threshold") or math.inf))}
+                for e in c.get("evidence", [])]
+        if rows:
+            out.append({"name": c.get("name", ""), "status": c.get("status", ""), "rows": rows})
+    return out
+
+
+def _noise_rows(v: Mapping[str, Any]) -> list[dict[str, Any]]:
+    """The noise model the verdict used, per sensor and component (std with the range the data
+    support)."""
+    rows = []
+    for sensor, comps in (v.get("noise") or {}).items():
+        for comp, n in comps.items():
+            deg = comp in ("azimuth", "elevation")
+            conv = (lambda x: _fmt(x, ".3f")) if deg else (lambda x: _fmt(None if x is None else x * 1000, ".2f"))
+            unit = "deg" if deg else ("mm at 1 m" if comp == "depth" else "mm")
+            rows.append({"sensor": sensor, "component": comp, "unit": unit, "estimate": conv(n.get("estimate")),
+                         "low": conv(n.get("low")), "high": conv(n.get("high")),
+                         "identified": "yes" if n.get("identified") else "no (a pair's split)"})
+    return rows
 
 
 def _context(data: Mapping[str, Any]) -> dict[str, Any]:

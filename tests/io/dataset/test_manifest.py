@@ -159,7 +159,7 @@ S_R = "  - {name: radar1, kind: radar, detections: radar1.csv}\n"
         ("sensors:\n" + S_L + "  - {kind: radar, detections: radar1.csv}\n", r"m\.yaml: sensors\[1\]: missing required key 'name'"),
         ("sensors:\n" + S_L + "  - {name: r, detections: radar1.csv}\n", r"sensors\[1\]: missing required key 'kind'"),
         ("sensors:\n" + S_L + "  - {name: r, kind: radar}\n", r"sensors\[1\]: missing required key 'detections'"),
-        ("sensors:\n" + S_L + "  - {name: r, kind: radar, detections: radar1.csv, fov: 3}\n", r"sensors\[1\]: unknown key\(s\) 'fov' \(allowed: name, kind, detections, frame_id, elevation_fov_deg, topic, prior\)"),
+        ("sensors:\n" + S_L + "  - {name: r, kind: radar, detections: radar1.csv, fov: 3}\n", r"sensors\[1\]: unknown key\(s\) 'fov' \(allowed: name, kind, detections, frame_id, elevation_fov_deg, topic, prior, hole_order\)"),
         ("sensors:\n" + S_L + "  - {name: r, kind: radar, detections: radar1.csv, prior: {height_m: 1}}\n", r"sensors\[1\]\.prior: unknown direction 'height_m' \(expected one of: roll_deg, pitch_deg, yaw_deg, x_m, y_m, z_m\)"),
         ("sensors:\n" + S_L + "  - {name: r, kind: radar, detections: radar1.csv, prior: {z_m: -1}}\n", r"sensors\[1\]\.prior\.z_m: expected a tolerance in m >= 0 \(0 holds it\), got -1"),
         ("sensors:\n" + S_L + "  - {name: r, kind: radar, detections: radar1.csv, prior: {roll_deg: .inf}}\n", r"sensors\[1\]\.prior\.roll_deg: expected a tolerance in deg >= 0"),
@@ -369,3 +369,37 @@ def test_real_accumulator_in_manifest(tmp_path):
     ds = load_manifest(tmp_path / "rig.yaml")
     assert ds.num_boards == 12
     assert [s.frame_id for s in ds.sensors] == ["velodyne", "left", "radar"]
+
+
+def _two_sensor_manifest(tmp_path: Path, lidar_extra: str = "", radar_extra: str = "") -> tuple[Path, np.ndarray]:
+    pts = write_csv(tmp_path, "l.csv", SensorKind.LIDAR)
+    write_csv(tmp_path, "c.csv", SensorKind.CAMERA)
+    write_csv(tmp_path, "r.csv", SensorKind.RADAR)
+    path = tmp_path / "rig.yaml"
+    path.write_text(
+        "sensors:\n"
+        f"  - {{name: lidar1, kind: lidar, detections: l.csv{lidar_extra}}}\n"
+        "  - {name: camera1, kind: camera, detections: c.csv}\n"
+        f"  - {{name: radar1, kind: radar, detections: r.csv{radar_extra}}}\n"
+    )
+    return path, pts
+
+
+@pytest.mark.parametrize("order, perm", [("mirrored", [1, 0, 3, 2]), ("[TR, TL, BR, BL]", [1, 0, 3, 2]),
+                                         ("[bl, br, tl, tr]", [2, 3, 0, 1]), ("[TL, TR, BL, BR]", [0, 1, 2, 3])])
+def test_hole_order_reorders_the_columns(tmp_path, order, perm):
+    path, pts = _two_sensor_manifest(tmp_path, f", hole_order: {order}")
+    got = load_manifest(path).sensor("lidar1").points
+    # file column i holds hole perm[i]: the documented hole perm[i] is the file's column i
+    expected = np.empty_like(pts)
+    expected[:, perm] = pts
+    np.testing.assert_array_equal(got, expected)
+
+
+def test_hole_order_errors_name_the_field(tmp_path):
+    path, _ = _two_sensor_manifest(tmp_path, ", hole_order: [TL, TL, BL, BR]")
+    with pytest.raises(InputError, match=r"sensors\[0\].hole_order: expected 'mirrored' or the four holes TL, TR, BL, BR"):
+        load_manifest(path)
+    path, _ = _two_sensor_manifest(tmp_path, radar_extra=", hole_order: mirrored")
+    with pytest.raises(InputError, match=r"sensors\[2\].hole_order: only lidar and camera detections have a hole order"):
+        load_manifest(path)

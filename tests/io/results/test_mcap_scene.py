@@ -266,7 +266,7 @@ def test_a_recording_scene_has_its_clouds_and_detections_at_their_times(tmp_path
     rig = tmp_path / "rig.yaml"
     rig.write_text(RADAR_RIG)
     assert run(["calibrate", str(bag), "--rig", str(rig), "--out", str(tmp_path / "cal"), "--cv-folds", "0",
-                "--force"]) in (0, 3)
+                "--force"]) in (0, 3, 5)  # written with --force whatever the verdict
     out = _export(tmp_path, tmp_path / "cal" / "calibration.yaml", "--recording", bag, "--rig", rig)
     assert "written to" in capsys.readouterr().out
     scene = read_scene(out)

@@ -25,6 +25,10 @@ Fields of a sensor:
   to ``name``;
 * ``elevation_fov_deg``: the largest |elevation| a radar sees, in degrees (a half-angle, like the
   original tool's ``max_elevation``); in (0, 90]; default 9;
+* ``hole_order`` (lidar / camera): which hole each of a board's four columns holds, as seen from
+  the sensor - a list of ``TL, TR, BL, BR`` in file order, or ``mirrored`` for
+  ``[TR, TL, BR, BL]``; default the documented ``[TL, TR, BL, BR]``. The columns are reordered
+  on reading (``rigcal calibrate`` names a mirrored order it finds in a file without the key).
 * ``prior``: tolerances (1 sigma) of the sensor's nominal mounting given with ``--initial``,
   e.g. ``{z_m: 0.01, roll_deg: 0.5, pitch_deg: 0.5}`` along / about the sensor's own axes
   (:mod:`rigcal.problem.priors`; 0 holds a direction).
@@ -73,7 +77,9 @@ from rigcal.problem.priors import check_prior
 MANIFEST_NAME = "rig.yaml"
 
 _TOP_KEYS = ("sensors", "reference", "board", "ignore")
-_SENSOR_KEYS = ("name", "kind", "detections", "frame_id", "elevation_fov_deg", "topic", "prior")
+_SENSOR_KEYS = ("name", "kind", "detections", "frame_id", "elevation_fov_deg", "topic", "prior", "hole_order")
+#: the documented hole order of a board's four columns (as seen from the sensor)
+HOLE_ORDER = ("TL", "TR", "BL", "BR")
 _BOARD_KEYS = tuple(f.name for f in fields(BoardGeometry))
 _CSV_SUFFIXES = (".csv",)
 _YAML_SUFFIXES = (".yaml", ".yml")
@@ -92,6 +98,7 @@ class _SensorEntry:
     elevation_fov_deg: float | None
     topic: str | None
     prior: Mapping[str, float] | None = None
+    hole_order: tuple[int, ...] | None = None  # column i holds documented hole hole_order[i]
 
 
 @dataclass(frozen=True)
@@ -183,8 +190,25 @@ def _parse_sensor(i: int, raw: Any, source: str) -> _SensorEntry:
                 f"(the largest |elevation| the radar sees), got {elevation!r}"
             )
         elevation = float(elevation)
+    hole_order = _parse_hole_order(raw["hole_order"], kind, f"{where}.hole_order") if "hole_order" in raw else None
     prior = check_prior(raw["prior"], f"{where}.prior") if "prior" in raw else None
-    return _SensorEntry(i, name, kind, detections, frame_id, elevation, topic, prior)
+    return _SensorEntry(i, name, kind, detections, frame_id, elevation, topic, prior, hole_order)
+
+
+def _parse_hole_order(raw: Any, kind: SensorKind, where: str) -> tuple[int, ...]:
+    """``mirrored`` or a list of TL, TR, BL, BR in file order -> the documented hole of each
+    column."""
+    if not kind.is_point_cloud:
+        raise InputError(f"{where}: only lidar and camera detections have a hole order, not {kind.value}")
+    if isinstance(raw, str) and raw.strip().lower() == "mirrored":
+        raw = ["TR", "TL", "BR", "BL"]
+    if (not isinstance(raw, list) or len(raw) != 4 or not all(isinstance(h, str) for h in raw)
+            or sorted(h.strip().upper() for h in raw) != sorted(HOLE_ORDER)):
+        raise InputError(
+            f"{where}: expected 'mirrored' or the four holes TL, TR, BL, BR in the file's column order "
+            f"(e.g. [TR, TL, BR, BL]), got {raw!r}"
+        )
+    return tuple(HOLE_ORDER.index(h.strip().upper()) for h in raw)
 
 
 def parse_board(raw: Any, source: str) -> BoardGeometry:
@@ -297,6 +321,8 @@ def _load_sensor(
             frame_id = frame_id or file_frame
     except InputError as exc:
         raise InputError(f"{where}: {exc}") from None
+    if entry.hole_order is not None:
+        points = np.array(points)[:, np.argsort(entry.hole_order)]  # back to TL, TR, BL, BR
     elevation = entry.elevation_fov_deg
     return SensorDetections(
         name=entry.name,

@@ -354,7 +354,7 @@ def test_a_start_behind_the_camera_is_recovered_by_pnp():
 
 
 def test_a_camera_nothing_can_place_is_refused_not_converged():
-    rig, obs = _camera_holds(np.random.default_rng(4), holds=2, frames=1)
+    rig, obs = _camera_holds(np.random.default_rng(4), holds=3, frames=1)
     few = [TargetObservation(o.sensor, o.target, o.t_ns, o.T_robot_target, o.measured[:3],
                              o.keypoints_target[:3]) for o in obs]  # 3 corners: no PnP
     flip = np.diag([1.0, -1.0, -1.0, 1.0])

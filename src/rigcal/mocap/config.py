@@ -516,7 +516,10 @@ def _options(raw: Any, source: str) -> MocapOptions:
             kw[key] = value
         else:
             kw[key] = _number(value, w, minimum=0.0)
-    return MocapOptions(**kw)
+    try:
+        return MocapOptions(**kw)
+    except InputError as exc:
+        raise InputError(f"{where}: {exc}") from None
 
 
 def read_initial_calibration(path: str | os.PathLike[str]) -> Extrinsics:

@@ -52,10 +52,11 @@ VIEW_POSE = "view_pose"
 #: a variance component is kept when dropping it raises -2 log REML by more than this (a test
 #: of a variance on the boundary at about the 5 % level)
 LIKELIHOOD_RATIO = 2.71
-#: components estimated from many groups whose zero estimate is replaced by the largest value
+#: components estimated from many groups (one per keypoint coordinate and hold) whose zero
+#: estimate is replaced by the largest value
 #: the data do not exclude: -2 log L within UPPER_DEVIANCE of the optimum (a one-sided 84 %
 #: bound)
-UPPER_COMPONENTS = ("capture", "view")
+UPPER_COMPONENTS = ("view",)
 UPPER_DEVIANCE = 1.0
 _SWEEPS = 4
 

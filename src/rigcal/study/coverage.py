@@ -35,8 +35,8 @@ when ``e' C^-1 e <= chi2_6(0.95) = 12.59`` for the right-perturbation error
 uses the translation part of ``e`` and ``C`` with ``chi2_3(0.95) = 7.81``. ``e' C^-1 e / 6``
 (NEES per degree of freedom; its median is 0.89 when ``C`` is right) tells a too wide region
 from a right one. A run whose clock offset mattered but could not be determined is flagged
-(``MocapSensorFit.time_offset_status``), as ``rigcal mocap`` would; flagged runs are
-counted and left out of the fractions.
+(``MocapSensorFit.time_offset_status``), as ``rigcal mocap`` would; flagged estimates are
+counted, and their covariance must hold the truth too (they are in the fractions).
 """
 
 from __future__ import annotations
@@ -207,6 +207,7 @@ def _trial(rng: np.random.Generator, holds: int, frames: int, model: str):
             "naive": _nees(est.T_reference_sensor, truth[name], f.covariance_naive),
             "noise_ratio": f.noise_sigma / (sigma_l if name == "lidar" else sigma_c),
             "flagged": status == "undetermined",
+            "offset_status": status,
             "offset_error_s": off_err,
             "offset_std_s": f.time_offset_std_s,
         }
@@ -226,7 +227,8 @@ def mocap_coverage(trials: int = 50, seed: int = 0, *, holds: int = 4, frames_pe
     (median of ``e' C^-1 e / 6``), ``naive_inside_6dof`` and ``naive_inside_3dof_translation``
     (one shared noise scale, independent frames), ``per_sensor`` (``{"lidar"|"camera": {those
     fractions, "nees_median", "noise_ratio_median": the estimated over the true noise sigma,
-    "offset_error_max_s": the largest error of a determined clock offset}}``), ``thresholds``
+    "offset_error_max_s": the largest error of a determined clock offset, "offsets_determined":
+    how many were}}``), ``thresholds``
     and ``time_s``. Each trial draws from ``numpy.random.default_rng([seed, trial])``, so a
     seed reproduces the numbers.
     """
@@ -256,7 +258,7 @@ def mocap_coverage(trials: int = 50, seed: int = 0, *, holds: int = 4, frames_pe
         def frac(key: str, i: int, limit: float) -> float:
             return float(np.mean([r[key][i] <= limit for r in ok])) if ok else float("nan")
 
-        offs = [r["offset_error_s"] for r in ok if math.isfinite(r["offset_error_s"]) and not r["flagged"]]
+        offs = [r["offset_error_s"] for r in ok if r["offset_status"] == "determined"]
         return {
             "checks": len(ok),
             "flagged": sum(1 for r in rows if r["flagged"]),
@@ -267,6 +269,7 @@ def mocap_coverage(trials: int = 50, seed: int = 0, *, holds: int = 4, frames_pe
             "naive_inside_3dof_translation": frac("naive", 1, CHI2_95_3),
             "noise_ratio_median": float(np.median([r["noise_ratio"] for r in ok])) if ok else float("nan"),
             "offset_error_max_s": float(max(offs)) if offs else float("nan"),
+            "offsets_determined": len(offs),
         }
 
     every = summary(per["lidar"] + per["camera"])

@@ -3,7 +3,11 @@
 Board modes: random 6-sensor rigs (2 lidars, 2 cameras, 2 2D radars) with unequal noise per
 sensor kind (lidar 4 mm, camera 20 mm lateral + 2 mm depth at 1 m growing with range squared,
 radar 30 mm range, 0.3 deg azimuth), 15 boards; the reference is the first lidar, so 5 sensors
-are judged per trial and mode (:mod:`rigcal.study.board_coverage`). Motion capture: simulated
+are judged per trial and mode (:mod:`rigcal.study.board_coverage`), and every relative transform
+between two of them. With priors (the default runs both): every non-reference sensor's nominal
+mounting is drawn around the truth with the stated tolerance (lidar and camera 2 cm / 1 deg in
+every direction, 2D radar z 2 cm, roll and pitch 1 deg) and calibrated with that prior
+(``--initial`` + ``prior``). Motion capture: simulated
 sessions with sensor noise unlike what the sensors are told, per-hold MCS errors and corner
 biases (:func:`rigcal.study.coverage.mocap_coverage`), next to the old covariance.
 
@@ -13,7 +17,7 @@ Motion capture is run under every error model of :data:`rigcal.study.coverage.ER
 bias, pixel noise, lidar range noise, timing jitter, a clock offset, all at once); the goal
 there is 0.90 - 0.98 inside and a median NEES per degree of freedom within 0.5 - 2, per sensor
 kind.
-Usage: python benchmarks/coverage.py [--trials N] [--seed S] [--modes mcpe,fcpe,pse]
+Usage: python benchmarks/coverage.py [--trials N] [--seed S] [--modes mcpe,fcpe,pse] [--priors both|off|only]
        [--mocap-trials N] [--mocap-models pixel,...] [--mocap-holds N]  (--trials 0: mocap only)
 """
 
@@ -26,7 +30,7 @@ import time
 
 from threadpoolctl import threadpool_limits
 
-from rigcal.study.board_coverage import board_coverage
+from rigcal.study.board_coverage import PriorSpec, board_coverage
 from rigcal.study.coverage import ERROR_MODELS
 
 
@@ -34,8 +38,8 @@ def _row(label: str, f: dict) -> str:
     kinds = "  ".join(
         f"{k} {v['position']:.2f}/{v['pose']:.2f} (n={v['sensors']})" for k, v in f["by_kind"].items()
     )
-    return (f"{label:8} {f['position']:9.3f} {f['pose']:9.3f} {f['sensors']:8d} "
-            f"{f['failures']:5d}/{f['runs']:<4d} {f['flagged']:5d}/{f['runs']:<4d}  {kinds}")
+    return (f"{label:12} {f['position']:9.3f} {f['pose']:9.3f} {f['relative']:9.3f} {f['sensors']:8d} "
+            f"{f['relatives']:5d} {f['failures']:5d}/{f['runs']:<4d} {f['flagged']:5d}/{f['runs']:<4d}  {kinds}")
 
 
 def main() -> int:
@@ -47,20 +51,26 @@ def main() -> int:
     ap.add_argument("--mocap-models", default=",".join(ERROR_MODELS),
                     help="motion capture: error models (default: all)")
     ap.add_argument("--mocap-holds", type=int, default=4, help="motion capture: holds per sensor")
+    ap.add_argument("--priors", default="both", choices=["both", "off", "only"],
+                    help="board modes without mounting priors, with them, or both (default)")
     args = ap.parse_args()
     print(f"machine: {platform.processor() or platform.machine()}, {platform.system()}, "
           f"python {platform.python_version()}")
     print("fraction of true poses inside the reported 95 % region "
-          "(position: 3D ellipsoid; pose: 6-DOF; 2D radars: in-plane ellipse + bounded intervals)")
-    print(f"{'mode':8} {'position':>9} {'pose':>9} {'sensors':>8} {'fail/runs':>10} {'flagged':>10}  "
-          "by kind (position/pose)")
-    t0 = time.perf_counter()
-    if args.trials:
+          "(position: 3D ellipsoid; pose: 6-DOF; 2D radars: in-plane ellipse + bounded intervals; "
+          "relative: every pair of non-reference sensors, T_a_b)")
+    print(f"{'mode':12} {'position':>9} {'pose':>9} {'relative':>9} {'sensors':>8} {'pairs':>5} "
+          f"{'fail/runs':>10} {'flagged':>10}  by kind (position/pose)")
+    scenarios = {"both": (None, PriorSpec()), "off": (None,), "only": (PriorSpec(),)}[args.priors] if args.trials else ()
+    for priors in scenarios:
+        t0 = time.perf_counter()
         with threadpool_limits(limits=1):
-            res = board_coverage(trials=args.trials, seed=args.seed, modes=tuple(args.modes.split(",")))
+            res = board_coverage(trials=args.trials, seed=args.seed, modes=tuple(args.modes.split(",")),
+                                 priors=priors)
         for mode, f in res.items():
-            print(_row(mode, f))
-        print(f"board modes: {args.trials} trials, {time.perf_counter() - t0:.0f} s")
+            print(_row(mode + (" +prior" if priors else ""), f))
+        print(f"board modes{' with priors' if priors else ''}: {args.trials} trials, "
+              f"{time.perf_counter() - t0:.0f} s")
     if args.mocap_trials:
         from rigcal.study.coverage import mocap_coverage
 

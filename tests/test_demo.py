@@ -31,15 +31,27 @@ def test_absolute_demo(tmp_path):
 
 
 @pytest.mark.slow  # ~40 s: renders, writes and detects a raw bag
-def test_raw_demo_reports_show_the_lidar_on_the_images(tmp_path):
+def test_raw_demo_reports_show_the_lidar_on_the_images(tmp_path, capsys):
     """The raw demo calibrates while its bag still exists, so each mode's report.html carries
-    the lidar-on-camera overlays of raw data (the bag is deleted afterwards)."""
+    the lidar-on-camera overlays of raw data (the bag is deleted afterwards). Piped (stdout not a
+    terminal), it prints plain progress while it simulates, writes, detects and calibrates, and
+    ends with the page to open."""
     import json
+    import re
 
-    from rigcal.demo import raw_demo
+    from rigcal.cli.main import run
 
-    report = raw_demo(tmp_path / "demo", seed=3, boards=4)
-    assert {o.mode for o in report.outcomes} == {"mcpe", "fcpe", "pse"}
+    assert run(["demo", "--seed", "3", "--boards", "4", "--out", str(tmp_path / "demo")]) == 0
+    out = capsys.readouterr().out.splitlines()
+    sim = [ln for ln in out if ln.startswith("simulating raw data: ")]
+    assert len(sim) >= 5 and re.fullmatch(r"simulating raw data: (\d+)/\1 frames \(100%\), [0-9.]+ s", sim[-1]), sim
+    percent = [int(m.group(1)) for ln in sim if (m := re.search(r"\((\d+)%\)", ln))]
+    assert percent == sorted(percent) and percent[0] < 20, sim
+    for stage in (r"writing the rosbag1 bag: 1/1 \(100%\), [0-9.]+ s", r"detecting: (\d+)/\1 frames \(100%\), [0-9.]+ s",
+                  r"calibrating MCPE, FCPE, PSE: 3/3 modes \(100%\), [0-9.]+ s"):
+        assert any(re.fullmatch(stage, ln) for ln in out), (stage, out)
+    assert out[-2:] == ["open this page in a browser (the other modes: mcpe/, pse/):",
+                        str(tmp_path / "demo" / "fcpe" / "report.html")]
     for mode in ("mcpe", "fcpe", "pse"):
         data = json.loads((tmp_path / "demo" / mode / "report.json").read_text())
         images = data["raw"]["images"]

@@ -142,3 +142,51 @@ def test_end_to_end_calibration_is_close_to_detection_level(scenario):
 
     T_true = invert(rec.truth[result.reference]) @ rec.truth["radar1"]
     assert judge_sensor(result, "radar1", T_true) == (True, True)
+
+
+def test_the_foxglove_scene_of_a_camera_recording_has_its_images_in_the_optical_frames(scenario):
+    """``export --format mcap --recording``'s scene on a recording with a stereo camera: one
+    left image per placement, full size, in the frame the writers publish the camera's data in,
+    at a time inside its placement; the lidar's and radar's clouds alike (read back with the
+    ``mcap`` reader, every message re-encoded by Foxglove's published schemas)."""
+    pytest.importorskip("foxglove")
+    mcap_reader = pytest.importorskip("mcap.reader")
+    mcap_protobuf = pytest.importorskip("mcap_protobuf.decoder")
+    from rigcal.io.results.calibration import write_results
+    from rigcal.io.results.calibration_files import read_calibration_transforms
+    from rigcal.io.results.frames import plan_with_checks
+    from rigcal.io.results.mcap_scene import IMAGE_TOPIC, POINTS_TOPIC, TF_TOPIC, build_scene, write_scene
+
+    rec, rig, run, tmp = scenario
+    result = calibrate(run.dataset, CalibrationOptions(mode="fcpe"))
+    calibration = write_results(result, tmp / "cal")[0]
+    plan, _ = plan_with_checks(read_calibration_transforms(calibration), None, None)
+    measured = {s.frame_id: s.measured for s in (plan.reference, *plan.sensors)}
+    with open_any(tmp / "rec.bag") as recording:
+        scene = build_scene(calibration, plan.transforms, detection=run, recording=recording, rig=rig,
+                            measured=measured)
+    out = write_scene(tmp / "scene.mcap", scene)
+    messages: dict[str, list] = {}
+    with open(out, "rb") as f:
+        reader = mcap_reader.make_reader(f, decoder_factories=[mcap_protobuf.DecoderFactory()])
+        for schema, channel, message, decoded in reader.iter_decoded_messages():
+            assert decoded.SerializeToString() == message.data, channel.topic
+            messages.setdefault(channel.topic, []).append((message.log_time, schema.name, decoded))
+    windows = [(p.start_ns, p.end_ns) for p in run.placements]
+    assert len(windows) == PLACEMENTS
+    tree = {t.child_frame_id for _, _, m in messages[TF_TOPIC] for t in m.transforms}
+    cameras = [s.name for s in run.dataset.sensors if s.kind == SensorKind.CAMERA]
+    assert cameras
+    for name in cameras:
+        images = messages[IMAGE_TOPIC.format(name)]
+        assert len(images) == PLACEMENTS
+        frame = measured[result.sensors[name].frame_id]
+        for (t, schema, im), (start, end) in zip(images, windows):
+            assert schema == "foxglove.RawImage" and start <= t <= end
+            assert im.frame_id == frame and frame in tree
+            assert (im.width, im.height) == (1936, 1216) and len(im.data) == im.step * im.height
+            assert im.timestamp.seconds * 1_000_000_000 + im.timestamp.nanos == t
+    for s in run.dataset.sensors:
+        if s.kind != SensorKind.CAMERA:
+            clouds = messages[POINTS_TOPIC.format(s.name)]
+            assert len(clouds) == PLACEMENTS and all(schema == "foxglove.PointCloud" for _, schema, _ in clouds)

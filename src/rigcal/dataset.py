@@ -71,6 +71,9 @@ class SensorDetections:
     max_elevation_rad: float = math.radians(DEFAULT_MAX_ELEVATION_DEG)
     source: str = ""
     excluded: frozenset[int] = field(default_factory=frozenset)
+    #: tolerances of the sensor's nominal mounting (``prior`` in the manifest; see
+    #: :mod:`rigcal.problem.priors`): direction -> 1-sigma [m / deg]; empty: none
+    prior: Mapping[str, float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         pts = np.array(self.points, dtype=float)
@@ -85,6 +88,7 @@ class SensorDetections:
         if not self.frame_id:
             object.__setattr__(self, "frame_id", self.name)
         object.__setattr__(self, "excluded", frozenset(int(k) for k in self.excluded))
+        object.__setattr__(self, "prior", dict(self.prior))
 
     @property
     def num_boards(self) -> int:

@@ -49,18 +49,27 @@ class DemoReport:
 
 
 def _calibrate_all(dataset, truth, out: Path, modes=("mcpe", "fcpe", "pse"),
-                   raw_images=None) -> tuple[ModeOutcome, ...]:
+                   raw_images=None, progress=None) -> tuple[ModeOutcome, ...]:
     """Calibrate with every mode and write each result set; ``raw_images(result)``, when given,
-    returns the report's lidar-on-image overlays from the recording."""
+    returns the report's lidar-on-image overlays from the recording. calibration.png too when
+    matplotlib is installed (the ``plots`` extra)."""
+    from rigcal.extras import available
     from rigcal.io.results.report import write_calibration_set
-    from rigcal.report.plot import plot_calibration
 
+    plot = available("matplotlib")
     outcomes = []
+    if progress:
+        progress(0, len(modes))
     for mode in modes:
         result = calibrate(dataset, CalibrationOptions(mode=mode, cross_validation_folds=5))
         write_calibration_set(result, dataset, out / mode, raw_images(result) if raw_images else None)
-        plot_calibration(dataset, result, out / mode / "calibration.png")
+        if plot:
+            from rigcal.report.plot import plot_calibration
+
+            plot_calibration(dataset, result, out / mode / "calibration.png")
         outcomes.append(ModeOutcome(mode, result, errors_against_truth(result, truth)))
+        if progress:
+            progress(len(outcomes), len(modes))
     return tuple(outcomes)
 
 
@@ -218,11 +227,12 @@ def raw_demo(
     rng = np.random.default_rng(seed)
     sensors = demo_raw_rig(full_rate)
     placements = raw_rig_placements(rng, sensors, boards)
-    if progress:
-        progress("simulating raw data", 0, 0)
-    rec = simulate_recording(sensors, placements, rng, dwell_s=2.5, transition_s=1.5)
-    if progress:
-        progress("simulating raw data", 1, 1)
+    from rigcal.stages import StageClock
+
+    clock = StageClock()
+    rec = simulate_recording(sensors, placements, rng, dwell_s=2.5, transition_s=1.5,
+                             progress=(lambda d, t: progress("simulating raw data", d, t)) if progress else None)
+    clock.lap(f"simulating {len(rec.frames)} frames of {len(sensors)} sensors, {boards} placements")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     rig_text = raw_rig_yaml(sensors)
@@ -231,15 +241,23 @@ def raw_demo(
     with tempfile.TemporaryDirectory(dir=out if keep_bag else None) as tmp:
         name = "recording.bag" if bag_format == "rosbag1" else "recording"
         bag_dir = out if keep_bag else Path(tmp)
+        if progress:
+            progress(f"writing the {bag_format} bag", 0, 1)
         bag = write_recording(bag_dir / name, frames_by_topic(rec.frames), bag_format)
+        if progress:
+            progress(f"writing the {bag_format} bag", 1, 1)
+        clock.lap(f"writing the {bag_format} bag")
         with open_any(bag) as recording:
             run = run_detection(
                 recording, rig, progress=(lambda d, t: progress("detecting", d, t)) if progress else None
             )
             write_dataset(run.dataset, out / "dataset")
+            clock.lap(f"detecting the board: {len(run.placements)} placements")
             # calibrated while the bag is still there: each report shows the lidar on the images
             outcomes = _calibrate_all(run.dataset, rec.truth, out, raw_images=lambda result: raw_overlays(
-                recording, rig, run.placements, run.dataset, result))
+                recording, rig, run.placements, run.dataset, result),
+                progress=(lambda d, t: progress("calibrating MCPE, FCPE, PSE", d, t)) if progress else None)
+            clock.lap("calibrating with every mode and writing the reports")
         bag_mb = _size_bytes(bag) / 1e6
     det_err = detection_errors(run, rec)
     notes = [

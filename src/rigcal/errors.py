@@ -33,3 +33,14 @@ class ConvergenceError(RigcalError):
     def __init__(self, *args: object, sensor: str | None = None) -> None:
         super().__init__(*args)
         self.sensor = sensor
+
+
+def printable(text: object) -> str:
+    """``str(text)`` on one line: control characters (newline, tab, carriage return, NUL, escape
+    and the other C0/C1 codes, line and paragraph separators) written as Python escapes
+    (``\\n``, ``\\t``, ``\\x00``, ...), so that a message quoting a hostile file or folder name
+    stays one line and shows what is really there."""
+    s = str(text)
+    if s.isprintable():
+        return s
+    return "".join(c if c.isprintable() or c == " " else repr(c)[1:-1] for c in s)

@@ -58,7 +58,12 @@ def test_absolute_writes_body_frame_calibration_close_to_truth(inputs, capsys):
     data = yaml.safe_load((out / "absolute.yaml").read_text())
     assert data["verdict"]["status"] == "consistent" and text.lstrip().startswith("consistent")
     radar2d = [n for n, s in data["sensors"].items() if s["kind"] == "radar"]
-    assert radar2d and all(set(data["sensors"][n]["bounded"]) == {"roll", "pitch", "z"} for n in radar2d)
+    assert radar2d and all(list(data["sensors"][n]["bounded_offsets"]) == ["roll", "pitch", "z"] for n in radar2d)
+    for n in radar2d:  # absolute values in the body frame, the estimate inside
+        s = data["sensors"][n]
+        assert {"roll", "pitch", "z"} <= set(s["bounded"])
+        assert s["bounded"]["z"]["estimate"] == pytest.approx(s["xyz_m"][2])
+        assert s["bounded"]["z"]["low"] <= s["xyz_m"][2] <= s["bounded"]["z"]["high"]
 
 
 def test_labels_missing_a_wheel_is_one_line_and_writes_nothing(inputs, capsys):

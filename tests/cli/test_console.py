@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -24,7 +25,7 @@ from rigcal.sim.rig import make_rig_placements, prius_like_rig, simulate
 HEAVY = ("numpy", "scipy", "cv2", "matplotlib", "rosbags", "rich", "yaml", "rigcal.problem", "rigcal.study",
          "rigcal.detect", "rigcal.mocap", "rigcal.io", "jinja2", "plotly", "rigcal.report")
 
-COMMANDS = ("calibrate", "detect", "absolute", "mocap", "report", "study", "urdf", "export", "demo")
+COMMANDS = ("calibrate", "check", "diff", "detect", "absolute", "mocap", "report", "study", "urdf", "export", "demo")
 
 
 def _imported_modules(*argv: str) -> set[str]:
@@ -63,6 +64,8 @@ def test_study_options_match_the_study():
 
 MINIMAL = {
     "calibrate": ["rig.yaml", "--out", "o"],
+    "check": ["calibration.yaml", "rig.yaml"],
+    "diff": ["old.yaml", "new.yaml"],
     "detect": ["rec.bag", "--rig", "rig.yaml", "--out", "o"],
     "absolute": ["rig.yaml", "--external", "e", "--scan", "s.pcd", "--labels", "l.yaml", "--out", "o"],
     "mocap": ["mocap.yaml", "--out", "o"],
@@ -101,9 +104,9 @@ def test_top_help_lists_the_exit_codes(capsys):
     assert exc.value.code == 0
     text = capsys.readouterr().out
     assert "exit codes:" in text
-    codes = {line.split()[0] for line in text.split("exit codes:")[1].splitlines() if line.strip()}
-    assert codes == {"0", "1", "2", "3", "4", "130", "143"}
-    assert "flagged" in text and "partial" in text
+    codes = {line.split()[0] for line in text.split("exit codes:")[1].splitlines() if re.match(r"  \d+ ", line)}
+    assert codes == {"0", "1", "2", "3", "4", "6", "7", "130", "143"}
+    assert "flagged" in text and "partial" in text and "moved (rigcal check / diff)" in text
 
 
 def test_demo_help_says_the_bag_is_deleted_unless_keep_bag(capsys):
@@ -168,8 +171,11 @@ def test_demo_tables_fit_80_columns(tmp_path, capsys, monkeypatch):
     monkeypatch.setenv("COLUMNS", "80")
     assert run(["demo", "--detections-only", "--boards", "12", "--out", str(tmp_path / "demo")]) == 0
     out = capsys.readouterr().out
-    assert_fits_80_columns(out)
+    report = str(tmp_path / "demo" / "fcpe" / "report.html")
+    assert out.splitlines()[-1] == report  # the page to open, whole, to copy (however long)
+    assert_fits_80_columns(out.replace(report, "report.html"))
     assert "errors against the simulated truth" in out and "FCPE RMSE between sensors (mm)" in out
+    assert "open this page in a browser (the other modes: mcpe/, pse/):" in out
 
 
 # --------------------------------------------------------------------------------------------
@@ -250,3 +256,59 @@ def test_progress_is_a_live_bar_on_a_terminal_and_lines_elsewhere(monkeypatch):
     assert isinstance(progress_bar(make_console()), PlainProgress)  # pytest's stdout is captured
     monkeypatch.setenv("FORCE_COLOR", "1")  # rich's own override: a terminal
     assert isinstance(progress_bar(make_console()), Progress)
+
+
+# --------------------------------------------------------------------------------------------
+# help wrapped to the terminal, -v stages
+
+
+def _help(argv: list[str], capsys) -> str:
+    with pytest.raises(SystemExit) as exc:
+        run([*argv, "--help"])
+    assert exc.value.code == 0
+    return capsys.readouterr().out
+
+
+@pytest.mark.parametrize("width", [60, 100])
+@pytest.mark.parametrize("command", ["", *COMMANDS, "study prius", "study mocap"])
+def test_help_is_wrapped_to_the_terminal_width(command, width, monkeypatch, capsys):
+    """Every line fits the terminal (COLUMNS), except an example command, which is kept whole
+    to be copied; the description says all it said before, in the same words."""
+    monkeypatch.setenv("COLUMNS", str(width))
+    argv = command.split()
+    text = _help(argv, capsys)
+    for line in text.splitlines():
+        # kept whole: an example command, a single token (choices), one option of the usage
+        whole = line.lstrip().startswith("rigcal ") or " " not in line.strip() or re.fullmatch(
+            r"\[[^\[\]]*\]", line.strip())
+        assert len(line) <= width or whole, (command, line)
+    parser = cli_main._parser()
+    for word in argv:
+        parser = next(a for a in parser._actions if isinstance(a, type(parser._subparsers._group_actions[0]))
+                      ).choices[word]
+    for paragraph in (parser.description or "").split("\n\n"):
+        assert " ".join(paragraph.split()) in " ".join(text.split()), (command, paragraph[:60])
+
+
+def test_verbose_logs_each_stage_with_its_time_to_stderr(tmp_path, sim, capsys):
+    manifest = write_dataset(sim.dataset, tmp_path / "data")
+    assert run(["calibrate", str(manifest), "--out", str(tmp_path / "quiet")]) == 0
+    assert capsys.readouterr().err == ""  # without -v: nothing on stderr
+    assert run(["-v", "calibrate", str(manifest), "--out", str(tmp_path / "loud"), "--mode", "pse"]) == 0
+    captured = capsys.readouterr()
+    lines = captured.err.splitlines()
+    timed = [ln for ln in lines if re.match(r"^\[ *\d+\.\d\d s\] ", ln)]
+    assert timed == lines and len(lines) >= 8, captured.err
+    stages = [re.sub(r"^\[ *\d+\.\d\d s\] ", "", ln) for ln in lines]
+    expected = ["rigcal calibrate ...", r"reading 3 sensors x \d+ boards: \d+\.\d\d s",
+                r"PSE fit with outlier screening \(\d+ noise iterations\): \d+\.\d\d s",
+                r"cross-validation \(5 folds\): \d+\.\d\d s", r"covariance: \d+\.\d\d s",
+                r"consistency checks \((consistent|flagged)\): \d+\.\d\d s",
+                r"calibration \(PSE, reference lidar1, verdict \w+\): \d+\.\d\d s",
+                rf"writing {re.escape(str(tmp_path / 'loud'))}/: \d+\.\d\d s", r"rigcal calibrate: \d+\.\d\d s"]
+    found = iter(stages)
+    for pattern in expected:  # in this order (other lines may come between)
+        assert any(re.fullmatch(pattern, s) for s in found), (pattern, stages)
+    elapsed = [float(re.match(r"^\[ *(\d+\.\d\d) s\]", ln).group(1)) for ln in lines]
+    assert elapsed == sorted(elapsed)
+    assert "errors between sensors" in captured.out  # the summary is unchanged, on stdout

@@ -19,7 +19,7 @@ sensors:
 """
 
 
-def _radar_bag(path, placements=4, rcs=15.0):
+def _radar_bag(path, placements=4, rcs=15.0, frame_ids=None):
     rng = np.random.default_rng(0)
     frames = {"/r1": [], "/r2": []}
     t = 1.0
@@ -30,7 +30,8 @@ def _radar_bag(path, placements=4, rcs=15.0):
                 clutter = rng.uniform([1, -3, -0.5], [8, 3, 0.5], (5, 3))[:, :dim]
                 pts = np.vstack([target[:dim] + rng.normal(0, 0.02, dim), clutter])
                 r = np.concatenate([[rcs], rng.uniform(-10, 3, 5)])
-                frames[topic].append(RadarFrame(sensor, int((t + i / rate) * NS), pts, r))
+                frames[topic].append(RadarFrame(sensor, int((t + i / rate) * NS), pts, r,
+                                                frame_id=(frame_ids or {}).get(sensor, "")))
         t += 4.5
     return write_recording(path, frames, "rosbag1")
 
@@ -124,3 +125,84 @@ def test_calibrate_with_rig_runs_detection_first(tmp_path, rig, capsys):
     assert "4 board placements found" in out.out and "radar2-radar1" in out.out.replace("radar1-radar2", "radar2-radar1")
     assert re.search(r"^detecting: (\d+)/\1 frames \(100%\), [0-9.]+ s$", out.out, re.M), out.out
     assert (tmp_path / "cal" / "calibration.yaml").is_file()
+
+
+def test_frame_ids_default_to_the_messages(tmp_path, rig, capsys):
+    """Without a frame_id in the rig, a sensor's frame is its messages' header.frame_id (a ROS 1
+    leading slash dropped); a rig frame_id that differs from the messages' is kept, with a note."""
+    import yaml
+
+    bag = _radar_bag(tmp_path / "rec.bag", frame_ids={"radar1": "/front_radar", "radar2": "radar_3d_link"})
+    rig.write_text(RIG.replace("topic: /r2,", "topic: /r2, frame_id: rear_radar,"))
+    assert run(["detect", str(bag), "--rig", str(rig), "--out", str(tmp_path / "det")]) == 0
+    out = " ".join(capsys.readouterr().out.split())
+    manifest = yaml.safe_load((tmp_path / "det" / "rig.yaml").read_text())
+    frames = {s["name"]: s["frame_id"] for s in manifest["sensors"]}
+    assert frames == {"radar1": "front_radar", "radar2": "rear_radar"}
+    assert ("note: sensor 'radar2': frame_id 'rear_radar' (rig) differs from its messages' "
+            "frame_id 'radar_3d_link'; the rig's is used") in out
+
+
+def test_calibrate_with_rig_keeps_the_detections_and_says_how_to_rerun(tmp_path, rig, capsys):
+    """The detections land in OUT/detections/ with the result; the printed command calibrates
+    them in another mode without detecting again, to the same poses as from the recording."""
+    import shlex
+
+    import yaml
+
+    bag = _radar_bag(tmp_path / "rec.bag")
+    cal = tmp_path / "cal"
+    assert run(["calibrate", str(bag), "--rig", str(rig), "--out", str(cal), "--cv-folds", "0",
+                "--reference", "radar2"]) == 0
+    out = capsys.readouterr().out
+    kept = cal / "detections" / "rig.yaml"
+    assert kept.is_file() and (cal / "detections" / "radar1.csv").is_file()
+    assert f"detections kept in {kept}; another mode without detecting again:" in out
+    command = next(ln.strip() for ln in out.splitlines() if ln.strip().startswith("rigcal calibrate "))
+    argv = shlex.split(command)[1:]
+    # PSE needs a lidar or camera: for these two radars the other mode offered is MCPE
+    assert argv[:4] == ["calibrate", str(kept), "--mode", "mcpe"] and argv[-1] == str(tmp_path / "cal_mcpe")
+    assert run([*argv, "--cv-folds", "0", "--reference", "radar2"]) == 0
+    assert "detecting" not in capsys.readouterr().out  # nothing detected again
+    # the kept detections are the recording's: FCPE from them equals FCPE from the recording
+    assert run(["calibrate", str(kept), "--out", str(tmp_path / "again"), "--cv-folds", "0",
+                "--reference", "radar2"]) == 0
+    a = yaml.safe_load((cal / "calibration.yaml").read_text())["sensors"]["radar1"]["T_reference_sensor"]
+    b = yaml.safe_load((tmp_path / "again" / "calibration.yaml").read_text())["sensors"]["radar1"]["T_reference_sensor"]
+    np.testing.assert_allclose(a, b, atol=1e-9)
+
+
+def test_keep_detections_dir_is_written_before_calibrating(tmp_path, rig, capsys, monkeypatch):
+    """--keep-detections DIR keeps them even when the calibration then fails."""
+    from rigcal.cli import calibrate as calibrate_cli
+    from rigcal.errors import InputError
+
+    bag = _radar_bag(tmp_path / "rec.bag")
+
+    def fail(*a, **k):
+        raise InputError("no calibration today")
+
+    monkeypatch.setattr("rigcal.problem.calibrate.calibrate", fail)
+    assert calibrate_cli.DETECTIONS_DIR == "detections"
+    code = run(["calibrate", str(bag), "--rig", str(rig), "--out", str(tmp_path / "cal"),
+                "--keep-detections", str(tmp_path / "dets")])
+    assert code == 1 and "no calibration today" in capsys.readouterr().err
+    assert (tmp_path / "dets" / "rig.yaml").is_file() and not (tmp_path / "cal").exists()
+
+
+def test_keep_detections_needs_a_recording(tmp_path, rig, capsys):
+    bag = _radar_bag(tmp_path / "rec.bag")
+    assert run(["detect", str(bag), "--rig", str(rig), "--out", str(tmp_path / "det")]) == 0
+    capsys.readouterr()
+    assert run(["calibrate", str(tmp_path / "det" / "rig.yaml"), "--out", str(tmp_path / "c"),
+                "--keep-detections", str(tmp_path / "k")]) == 1
+    assert "--keep-detections applies to a recording detected with --rig" in _one_error_line(capsys)
+
+
+def test_pse_on_radars_alone_is_a_clear_error(tmp_path, rig, capsys):
+    bag = _radar_bag(tmp_path / "rec.bag")
+    assert run(["calibrate", str(bag), "--rig", str(rig), "--mode", "pse", "--reference", "radar2",
+                "--out", str(tmp_path / "c"), "--keep-detections", str(tmp_path / "k")]) == 1
+    line = _one_error_line(capsys)
+    assert "PSE needs a lidar or camera" in line and "radar1, radar2" in line
+    assert (tmp_path / "k" / "rig.yaml").is_file()  # the detection work is not lost

@@ -11,7 +11,6 @@ ground. Range noise is Gaussian along the ray.
 from __future__ import annotations
 
 import math
-import time
 
 import numpy as np
 import pytest
@@ -303,16 +302,9 @@ def test_config_is_validated():
 # ----------------------------------------------------------------------------- speed
 
 
-def test_timing_on_a_full_hdl64_scan():
+def test_a_full_hdl64_scan():
+    """A whole HDL-64E scan (its speed: benchmarks/bench_detect.py, not a timed test)."""
     frame, truth = lidar_scan(99, distance=5.0, azimuth=0.5, yaw=0.2, tilt=0.1)
     assert len(frame) > 125_000
-    detect_board_lidar(frame)  # warm-up
-    times = []
-    for _ in range(5):
-        t0 = time.perf_counter()
-        det = detect_board_lidar(frame)
-        times.append(time.perf_counter() - t0)
+    det = detect_board_lidar(frame)
     assert isinstance(det, BoardDetection)
-    print(f"\ndetect_board_lidar on {len(frame)} points: median {np.median(times) * 1000:.0f} ms, "
-          f"min {min(times) * 1000:.0f} ms")
-    assert np.median(times) < 0.5  # target 50 ms; generous bound against slow CI machines

@@ -58,6 +58,12 @@ def test_worked_example_runs_as_written(tmp_path, monkeypatch, capsys):
     changed = [a for a, b in zip(original, (root / "prius.urdf").read_text().splitlines()) if a != b]
     assert len(changed) == 1 and "0 1 0" in changed[0]  # only camera_joint's origin line
     assert (root / "prius_tf.launch.py").is_file() and (root / "prius_pse" / "calibration.yaml").is_file()
+    # the URDF-in flow: the optical child of the body-convention camera link gets the pose
+    nominal = read_calibration_transforms(root / "prius_nominal" / "calibration.yaml")
+    urdf = parse_urdf((root / "prius_calibrated.urdf").read_text(), "prius_calibrated.urdf")
+    T = forward_kinematics(urdf, "laser_link", "camera_optical_frame")
+    assert np.abs(T - nominal.transforms["camera"]).max() < 1e-9
+    assert "19.65" in out
 
 
 def test_sample_manifest_and_detection_rig_are_valid():

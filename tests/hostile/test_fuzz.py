@@ -9,6 +9,7 @@ huge numbers, spliced garbage) and plain random bytes. Every test runs inside ``
 
 from __future__ import annotations
 
+import json
 import warnings
 from types import SimpleNamespace
 
@@ -357,3 +358,251 @@ def test_mutation_strategy_is_seeded():
     seen.clear()
     collect()
     assert seen == first
+
+
+# -------------------------------------------------------------------------------- issue #22: the new commands
+def _report_json_seed() -> bytes:
+    from rigcal.problem.calibrate import CalibrationOptions, calibrate
+    from rigcal.io.results.report import report_json_text
+    from rigcal.report.data import calibration_report
+    from rigcal.sim.rig import make_rig_placements, prius_like_rig, simulate
+
+    rng = np.random.default_rng(3)
+    sensors = prius_like_rig()
+    sim = simulate(sensors, make_rig_placements(rng, sensors, 6, min_fraction=1.0), rng=rng)
+    result = calibrate(sim.dataset, CalibrationOptions(mode="fcpe", cross_validation_folds=0))
+    return report_json_text(calibration_report(result, sim.dataset)).encode()
+
+
+def test_fuzz_report_and_study_json(limited):
+    """``rigcal report``'s inputs: a (mutated) report.json or study.json is rendered or refused
+    with a RigcalError - a 5000-digit integer, deep nesting, NaN, wrong types included."""
+    from rigcal.io._text import load_json
+    from rigcal.report.page import check_report_data, render_report
+    from rigcal.report.study_page import render_study
+
+    study = (b'{"meta": {"study": "x", "seed": 0}, "rows": [{"table": "III", "config": "FCPE", "pair": "a-b", '
+             b'"median_mm": 1.5, "mad_mm": 0.2, "paper_mm": 1.0, "draws": 3}, {"table": "fig7", "k": 3, '
+             b'"config": "PSE", "pair": "a-b", "median_mm": 2.0}]}')
+    seeds = [_report_json_seed(), study, b'{"rows": [' * 40 + b"]" * 40, b'{"n": ' + b"9" * 5000 + b"}"]
+
+    def target(text):
+        data = load_json(text, "report.json")
+        if isinstance(data, dict) and "rows" in data:
+            render_study(data, "study.json")
+        else:
+            render_report(check_report_data(data, "report.json"), "report.json")
+
+    run_fuzz(limited, seeds, target, text=True, examples=80)
+
+
+def test_fuzz_scheduler_addresses():
+    """``--scheduler``: any text is an address (scheme, host, port in range) or an InputError;
+    nothing is contacted here."""
+    from rigcal.errors import InputError
+    from rigcal.study.scale import parse_scheduler_address
+
+    parts = st.tuples(st.sampled_from(["", "tcp://", "tls://", "ucx://", "inproc://", "ws://", "TCP://", "://"]),
+                      st.sampled_from(["", "127.0.0.1", "node7", "[::1]", "a\nb", "a\x00b", "h/x", ":"]),
+                      st.sampled_from(["", ":", ":8786", ":0", ":65536", ":-1", ":80a", ":99999999999999", "::1"]))
+    addresses = st.one_of(st.text(max_size=30), parts.map("".join))
+
+    @settings(FUZZ, max_examples=250)
+    @given(addresses)
+    def fuzz(address):
+        try:
+            scheme, host, port = parse_scheduler_address(address)
+        except InputError as exc:
+            assert "\n" not in str(exc) or "\n" in address  # (the CLI escapes it on output)
+            return
+        assert scheme in ("tcp", "tls", "ucx") and host and 1 <= port <= 65535
+
+    fuzz()
+
+
+def test_fuzz_fleet_arguments(tmp_path):
+    """``--batch`` arguments: whatever they are (missing, files, NUL, control characters, the
+    same folder twice), every argument becomes an entry or a note and nothing raises."""
+    from rigcal.fleet import fleet_entries
+
+    (tmp_path / "car1").mkdir()
+    (tmp_path / "car1" / "rig.yaml").write_text("sensors: []\n")
+    (tmp_path / "notes.txt").write_text("x")
+    names = st.sampled_from(["car1", "car1/", "car1/rig.yaml", "notes.txt", "nope", "car\n1", "a\x00b", ".", "..",
+                             "x" * 300, "car1/../car1"])
+
+    @settings(FUZZ, max_examples=80)
+    @given(st.lists(st.one_of(names, st.text(max_size=12)), min_size=1, max_size=6))
+    def fuzz(args):
+        entries, notes = fleet_entries([str(tmp_path / a) for a in args])
+        assert len(entries) + len(notes) <= len(args)
+        named = [e.name for e in entries if e.problem is None]
+        assert len(named) == len(set(named))  # two entries never write to the same OUT/<name>/
+        for e in entries:
+            assert e.problem is None or str(e.path) in e.problem or e.problem.startswith("'")
+        assert all("\n" not in n for n in notes)
+
+    fuzz()
+
+
+def test_fuzz_study_options():
+    """``rigcal study``'s numeric options: any value parses within its documented range or is a
+    usage error naming the option."""
+    import argparse
+    import contextlib
+    import io
+
+    from rigcal.cli.study import MAX_MEASUREMENTS, MAX_SEED, MAX_TRIALS, mocap_parser
+
+    values = st.one_of(st.integers(-2**70, 2**70).map(str), st.sampled_from(["1e9", "nan", "-0", "", "0x10", "٣"]))
+
+    @settings(FUZZ, max_examples=300)
+    @given(st.sampled_from(["--seed", "--trials", "--measurements"]), values)
+    def fuzz(option, value):
+        err = io.StringIO()
+        try:
+            with contextlib.redirect_stderr(err):
+                args = mocap_parser().parse_args([option, value])
+        except SystemExit as exc:
+            assert exc.code == 2 and f"argument {option}" in err.getvalue()
+            return
+        assert isinstance(args, argparse.Namespace)
+        assert 0 <= args.seed <= MAX_SEED and 1 <= args.trials <= MAX_TRIALS
+        assert all(1 <= n <= MAX_MEASUREMENTS for n in args.measurements)
+
+    fuzz()
+
+
+# -------------------------------------------------------------------------------- check and diff
+def _stored_seed(tmp_path):
+    """A compact calibration.yaml (only the fields check and diff read, leaf lists in flow
+    style, so that mutations land on them) and new detections of the same rig."""
+    from rigcal.io._text import dump_yaml
+    from rigcal.io.results.calibration import result_to_yaml_text
+    from rigcal.problem.calibrate import CalibrationOptions, calibrate
+    from rigcal.sim.rig import make_rig_placements, prius_like_rig, simulate
+
+    sensors = prius_like_rig()
+    rng = np.random.default_rng(5)
+    sim = simulate(sensors, make_rig_placements(rng, sensors, 8, min_fraction=1.0), rng=rng)
+    result = calibrate(sim.dataset, CalibrationOptions(mode="fcpe", cross_validation_folds=0))
+    import yaml
+
+    full = yaml.safe_load(result_to_yaml_text(result))
+    keep = {"reference", "mode", "num_boards", "sensors", "relative", "noise_model"}
+    compact = {k: v for k, v in full.items() if k in keep}
+    for s in compact["sensors"].values():
+        for k in [k for k in s if k not in ("kind", "frame_id", "T_reference_sensor", "covariance", "held", "bounded")]:
+            del s[k]
+    for r in compact["relative"].values():
+        for k in [k for k in r if k not in ("to", "from", "covariance")]:
+            del r[k]
+    rng = np.random.default_rng(6)
+    new = simulate(sensors, make_rig_placements(rng, sensors, 4, min_fraction=1.0), rng=rng).dataset
+    return dump_yaml(compact, flow=None).encode(), new
+
+
+def test_fuzz_stored_calibration(limited, tmp_path):
+    """``rigcal check`` / ``diff``'s reader: a (mutated) calibration.yaml is refused with a
+    RigcalError or read as a calibration that check, diff and the check page then handle
+    without an exception or a floating-point warning."""
+    from rigcal.io.results.check_report import json_text
+    from rigcal.io.results.stored import parse_stored_calibration
+    from rigcal.problem.check import check
+    from rigcal.problem.diff import diff
+    from rigcal.report.check_page import render_check
+
+    seed, dataset = _stored_seed(tmp_path)
+    original = parse_stored_calibration(seed.decode(), "seed.yaml")
+    seeds = [seed, seed.replace(b"num_boards: 8", b"num_boards: " + b"9" * 5000),
+             b"reference: a\nsensors: {a: " * 30 + b"}" * 30]
+
+    def target(text):
+        stored = parse_stored_calibration(text, "calibration.yaml")
+        for name, s in stored.sensors.items():
+            assert np.all(np.isfinite(s.covariance)) and np.all(np.isfinite(s.T_reference_sensor))
+            assert name.isprintable() and np.min(np.linalg.eigvalsh(s.covariance)) > -1e-6
+        data = check(stored, dataset).to_dict()
+        render_check(json.loads(json_text(data)))
+        diff(stored, stored)
+        diff(original, stored)
+
+    run_fuzz(limited, seeds, target, text=True, examples=100)
+
+
+def test_fuzz_check_and_diff_arguments(limited, tmp_path):
+    """``rigcal check`` / ``diff`` / ``check --batch`` with any mix of arguments (inputs swapped,
+    files for folders, missing paths, control characters, --out onto an input, --alpha out of
+    range, schedulers that cannot be used): an exit code the help documents, never an
+    exception, and no input changed."""
+    import contextlib
+    import io
+    import shutil
+    from pathlib import Path
+
+    from rigcal.cli.main import run
+    from rigcal.io.atomic import mark_output
+    from rigcal.io.dataset.manifest import write_dataset
+
+    seed, dataset = _stored_seed(tmp_path)
+    (tmp_path / "cal").mkdir()
+    (tmp_path / "cal" / "calibration.yaml").write_bytes(seed)
+    mark_output(tmp_path / "cal")  # as rigcal calibrate leaves it
+    write_dataset(dataset, tmp_path / "data")
+    shutil.copytree(tmp_path / "data", tmp_path / "fleet" / "car1")
+    shutil.copytree(tmp_path / "cal", tmp_path / "calib" / "car1")
+    (tmp_path / "notes.txt").write_text("mine")
+
+    pristine = tmp_path.parent / f"{tmp_path.name}-pristine"
+    shutil.copytree(tmp_path, pristine)
+    before = {p: p.read_bytes() for p in sorted(tmp_path.rglob("*")) if p.is_file()}
+
+    def inputs(args: list[str]) -> set[Path]:
+        """The files a run reads: every path argument but --out's value, and what is below it."""
+        given = {Path(a) for i, a in enumerate(args) if a.startswith(str(tmp_path)) and args[i - 1] != "--out"}
+        return {p for p in before if any(p == g or g in p.parents for g in given)}
+
+    def restore() -> None:  # every example starts from the same files (a run may replace a rigcal folder
+        shutil.rmtree(tmp_path)  # that is not one of its inputs: --out onto a marked folder)
+        shutil.copytree(pristine, tmp_path)
+
+    paths = st.sampled_from([str(tmp_path / p) for p in ("cal", "cal/calibration.yaml", "data", "data/rig.yaml",
+                                                          "fleet/car1", "notes.txt", "nope", "fleet", "calib",
+                                                          "car\n1", "out/a", "out/b[/x]")])
+    calibrations = st.sampled_from([str(tmp_path / p) for p in ("cal", "cal/calibration.yaml")])
+    data = st.sampled_from([str(tmp_path / p) for p in ("data", "data/rig.yaml", "cal")])
+    alphas = st.sampled_from(["0.05", "0", "0.5", "nan", "-1", "abc", "1e-300", "0.4999"])
+
+    def maybe(option, values):
+        return st.one_of(st.just([]), values.map(lambda v: [option, v]))
+
+    @st.composite
+    def argv(draw):
+        command = draw(st.sampled_from(["check", "check", "check --batch", "diff"]))
+        if command == "check --batch":
+            return ["check", "--scheduler", "serial", *draw(maybe("--scheduler", st.sampled_from(
+                ["tls://127.0.0.1:1", "x:y:z", "", "inproc://a"]))), *draw(maybe("--calibrations", paths)),
+                *draw(maybe("--out", paths)), *draw(maybe("--alpha", alphas)), *draw(st.sampled_from([[], ["--json"]])),
+                "--batch", *draw(st.lists(paths, min_size=1, max_size=3))]
+        positional = draw(st.one_of(st.tuples(calibrations, data).map(list), st.lists(paths, max_size=3)))
+        extra = draw(maybe("--alpha", alphas))
+        if command == "check":
+            extra += draw(maybe("--out", paths)) + draw(maybe("--rig", paths)) + draw(st.sampled_from([[], ["--json"]]))
+        return [command, *positional, *extra]
+
+    @settings(FUZZ, max_examples=50)
+    @given(argv())
+    def fuzz(args):
+        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()) as err:
+            try:
+                code = run(args)
+            except SystemExit as exc:  # argparse: a usage error
+                code = exc.code
+        assert code in (0, 1, 2, 4, 6, 7), (args, code, err.getvalue())
+        if code == 1:
+            assert err.getvalue().count("rigcal: error:") >= 1, (args, err.getvalue())
+        changed = [str(p) for p in inputs(args) if not p.is_file() or p.read_bytes() != before[p]]
+        restore()
+        assert not changed, (args, changed)
+
+    limited(fuzz, MEMORY_MB, 240)

@@ -212,3 +212,25 @@ def test_without_an_interrupt_commits_go_ahead(tmp_path):
     with staged_folder(tmp_path / "out") as stage:
         atomic_write_text(stage / "a.txt", "a")
     assert (tmp_path / "out" / "a.txt").read_text() == "a"
+
+
+def test_check_output_folder_refuses_before_any_work(tmp_path):
+    from rigcal.io.atomic import check_output_folder, staged_folder
+
+    assert check_output_folder(tmp_path / "new" / "out") == tmp_path / "new" / "out"
+    (tmp_path / "file").write_text("mine")
+    with pytest.raises(InputError, match=r"--out .*file: exists and is not a folder"):
+        check_output_folder(tmp_path / "file")
+    with pytest.raises(InputError, match=r"--out .*file/out: cannot use as output folder: Not a directory"):
+        check_output_folder(tmp_path / "file" / "out")
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "thesis.tex").write_text("x")
+    with pytest.raises(InputError, match=r"holds files rigcal did not write \(thesis.tex\)"):
+        check_output_folder(tmp_path / "mine")
+    with pytest.raises(InputError, match=r"--out .*mine: holds an input of this run \(.*thesis.tex\)"):
+        check_output_folder(tmp_path / "mine", inputs=(tmp_path / "mine" / "thesis.tex",))
+    with staged_folder(tmp_path / "ours") as stage:
+        (stage / "a.txt").write_text("a")
+    assert check_output_folder(tmp_path / "ours") == tmp_path / "ours"  # an earlier rigcal output
+    with pytest.raises(InputError, match=r"is an input of this run"):
+        check_output_folder(tmp_path / "ours", inputs=(tmp_path / "ours",))

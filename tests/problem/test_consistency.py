@@ -61,10 +61,17 @@ def test_a_bad_board_kept_is_flagged_and_named(sim):
 
 
 def test_rank_deficiency_fails_and_bounds_are_notes():
-    v = verdict(Check("pairs", PASS, ""), Check("boards", PASS, ""), True, {"radar1": {"z": (-0.1, 0.2)}}, {})
+    v = verdict(Check("pairs", PASS, ""), Check("boards", PASS, ""), True, {"radar1": {"z": (0.3, 0.6, 0.3)}}, {})
     assert v.status == "flagged" and [c.name for c in v.failed] == ["rank"]
     assert any(c.status == NOTE and c.name == "bounded" for c in v.checks)
     assert v.to_dict()["status"] == "flagged"
+    # absolute values with the estimate; the rank line does not call bounded directions determined
+    ok = verdict(Check("pairs", PASS, ""), Check("boards", PASS, ""), False, {"radar1": {"z": (0.3, 0.6, 0.3)}}, {})
+    text = {c.name: c.detail for c in ok.checks}
+    assert "z +0.300 .. +0.600 m (estimate +0.300)" in text["bounded"]
+    assert "except" in text["rank"] and "radar1" in text["rank"]
+    plain = verdict(Check("pairs", PASS, ""), Check("boards", PASS, ""), False, {}, {})
+    assert {c.name: c.detail for c in plain.checks}["rank"] == "every direction determined"
 
 
 @pytest.mark.parametrize("mode", ["mcpe", "fcpe", "pse"])

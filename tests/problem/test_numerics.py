@@ -158,3 +158,32 @@ def test_single_threaded_also_limits_a_blas_loaded_after_its_first_use():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     n, most = (int(x) for x in out.split())
     assert n >= 1 and most == 1
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_polytope_vertices_give_what_the_linear_program_finds(seed):
+    from rigcal.problem.numerics import maximise_in_polytope, polytope_vertices
+
+    rng = np.random.default_rng(seed)
+    for _ in range(40):
+        k = int(rng.integers(1, 4))
+        A = rng.normal(size=(int(rng.integers(0, 60)), k))
+        if seed % 2:  # near-duplicate constraints, as several pairs seeing one reflector give
+            A = np.vstack([A, A * (1 + 1e-7)])
+        b = np.abs(rng.normal(size=len(A))) * rng.uniform(0.01, 2.0)
+        if len(b):
+            b[int(rng.integers(0, len(b)))] = 0.0  # the origin on a face
+        limit = rng.uniform(0.5, 10.0, size=k)
+        V = polytope_vertices(A, b, limit)
+        assert np.all(np.abs(V) <= limit + 1e-9)
+        if len(A):
+            assert np.all(A @ V.T <= b[:, None] + 1e-9)
+        for c in rng.normal(size=(8, k)):
+            assert float(np.max(V @ c)) == pytest.approx(float(c @ maximise_in_polytope(c, A, b, limit)), abs=1e-9)
+
+
+def test_polytope_vertices_refuses_more_than_three_dimensions():
+    from rigcal.problem.numerics import polytope_vertices
+
+    with pytest.raises(ValueError, match=r"k = 4 \(1 to 3\)"):
+        polytope_vertices(np.zeros((1, 4)), np.ones(1), np.ones(4))

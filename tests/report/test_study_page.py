@@ -4,8 +4,10 @@ the paper's values, one-line errors on malformed JSON, and `rigcal report STUDY_
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from rigcal.cli.main import run
@@ -79,4 +81,78 @@ def test_rigcal_report_writes_study_html(tmp_path: Path, capsys):
     (tmp_path / "study.json").write_text("{not json")
     assert run(["report", str(tmp_path)]) == 1
     err = capsys.readouterr().err
-    assert "study.json: not JSON" in err and "Traceback" not in err
+    assert "study.json: not valid JSON" in err and "Traceback" not in err
+
+
+def _meta_rows(html: str) -> dict[str, str]:
+    table = html.split('<table id="meta">', 1)[1].split("</table>", 1)[0]
+    return dict(re.findall(r'<th class="text">(.*?)</th><td class="text">(.*?)</td>', table))
+
+
+def test_page_shows_no_absolute_path():
+    """study.html is shared: the manifest the study ran on is shown by its name, not by where it
+    was on the machine that ran it (study.json keeps what was given); other text is untouched."""
+    study = make_study()
+    study["meta"].update(manifest="/home/someone/rigs/prius/rig.yaml", scheduler="tcp://10.0.0.5:8786",
+                         windows="C:\\Users\\someone\\rig.yaml", relative="examples/prius/rig.yaml")
+    html = render_study(study)
+    meta = _meta_rows(html)
+    assert meta["manifest"] == "rig.yaml" and meta["windows"] == "rig.yaml"
+    assert meta["relative"] == "examples/prius/rig.yaml" and meta["scheduler"] == "tcp://10.0.0.5:8786"
+    assert "/home/someone" not in html and "Users" not in html
+
+
+def test_meta_mappings_are_shown_and_unset_values_left_out():
+    """The draws each table used (a mapping) are shown, not a bare '-'; a value that is not set
+    (None, as in an older study.json) is left out."""
+    study = make_study()
+    study["meta"].update(draws={"III": 200, "fig7": 100, "fig8": 100}, unset=None,
+                         wall_time_s={"II": 0.4, "III + fig7 + fig8": 491.2}, fig7_k=[3, 4, 5])
+    meta = _meta_rows(render_study(study))
+    assert meta["draws"] == "III: 200, fig7: 100, fig8: 100"
+    assert meta["wall_time_s"] == "II: 0.40, III + fig7 + fig8: 491.20"
+    assert "unset" not in meta and "fig7_k" not in meta and "-" not in meta.values()
+
+
+def test_notes_are_a_section_of_the_page():
+    study = make_study()
+    study["meta"]["notes"] = ["Why the paper's MCPE rows differ: <evidence>.", "Second note."]
+    html = render_study(study)
+    notes = html.split('<section id="notes">', 1)[1].split("</section>", 1)[0]
+    assert notes.count('<p class="note">') == 2 and "&lt;evidence&gt;" in notes  # escaped
+    assert "notes" not in _meta_rows(html)
+    assert '<section id="notes">' not in render_study(make_study())  # none, no section
+
+
+def test_prius_meta_names_the_draws_each_table_used():
+    from rigcal.study.prius import DEFAULT_DRAWS, MCPE_NOTE, study_meta
+
+    meta = study_meta("examples/prius/rig.yaml", ("II", "III", "fig7", "fig8"), None, 10, 0, "serial", {})
+    assert meta["draws"] == {"III": 200, "fig7": 100, "fig8": 100} == DEFAULT_DRAWS
+    assert meta["manifest"] == "examples/prius/rig.yaml" and meta["notes"] == [MCPE_NOTE]
+    assert study_meta("m.yaml", ("fig7",), 3, 10, 0, "serial", {})["draws"] == {"fig7": 3}
+    only_ii = study_meta("m.yaml", ("II",), None, 10, 0, "serial", {"II": 0.4})
+    assert "draws" not in only_ii and "notes" not in only_ii  # Table II draws nothing
+    rows = _meta_rows(render_study({"meta": meta, "rows": make_study()["rows"]}))
+    assert rows["draws"] == "III: 200, fig7: 100, fig8: 100"
+    for evidence in ("33 of 200", "multi_sensor_calibration"):
+        assert evidence in MCPE_NOTE
+
+
+def test_rigcal_study_prius_page_has_no_absolute_path_and_the_draws(tmp_path: Path):
+    """End to end on a simulated rig (12 boards) given by its absolute path."""
+    from rigcal.io.dataset.manifest import write_dataset
+    from rigcal.sim.rig import make_rig_placements, prius_like_rig, simulate
+
+    rng = np.random.default_rng(5)
+    sensors = prius_like_rig()
+    manifest = write_dataset(simulate(sensors, make_rig_placements(rng, sensors, 12, min_fraction=1.0),
+                                      rng=rng).dataset, tmp_path / "data")
+    out = tmp_path / "study"
+    assert run(["study", "prius", str(manifest.resolve()), "--table", "III", "--draws", "1", "--boards", "5",
+                "--scheduler", "serial", "--out", str(out)]) == 0
+    html = (out / "study.html").read_text()
+    assert str(tmp_path) not in html
+    meta = _meta_rows(html)
+    assert meta["manifest"] == manifest.name and meta["draws"] == "III: 1"
+    assert "MCPE" in html.split('<section id="notes">', 1)[1].split("</section>", 1)[0]

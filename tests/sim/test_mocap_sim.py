@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-import time
 from pathlib import Path
 
 import cv2
@@ -334,10 +333,11 @@ def test_overlapping_rig_captures_hold_scans_and_images(targets):
     assert [c.aimed_at for c in sim.captures] == ["camera", "lidar", "camera", "lidar"]
 
 
-def test_thirty_lidar_captures_take_a_few_seconds(rig, targets):
-    t = time.perf_counter()
-    simulate_mocap(rig, targets.diamond, 30, 0)
-    assert time.perf_counter() - t < 6.0
+def test_thirty_lidar_captures(rig, targets):
+    """Thirty captures aimed at the lidar (their speed is measured in benchmarks/bench_mocap.py,
+    not here: a timed test fails on a loaded machine)."""
+    sim = simulate_mocap(rig, targets.diamond, 30, 0)
+    assert len(sim.data("lidar")) == 30
 
 
 def test_bad_simulation_requests_are_refused(rig, targets):

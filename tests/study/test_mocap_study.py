@@ -122,8 +122,8 @@ def test_command_line_shell_returns_text_and_exit_code():
     assert code == 0 and "cylinder target" in text and "Table II" in text
     text, code = main(["--target", "cylinder", "--trials", "1", "--measurements", "3", "--json"])
     assert code == 0 and json.loads(text)["target"] == "cylinder"
-    text, code = main(["--trials", "0"])
-    assert code == 1 and text == "rigcal: error: study: trials must be an integer >= 1, got 0"
+    text, code = main(["--trials", "0"])  # a usage error naming the option (issue #22: options have ranges)
+    assert code == 2 and "argument --trials: expected 1 to 10000, got 0" in text
     text, code = main(["--help"])
     assert code == 0 and "examples:" in text and "rigcal study mocap --trials 20" in text
     text, code = main(["--target", "sphere"])

@@ -61,7 +61,7 @@ def test_cli_writes_study_md_and_json(prius, tmp_path, capsys):
     assert run(["study", "prius", str(MANIFEST), "--table", "III", "--draws", "1", "--out", str(out),
                 "--scheduler", "serial"]) == 0
     data = json.loads((out / "study.json").read_text())
-    assert data["meta"]["draws"] == 1 and len(data["rows"]) == 15
+    assert data["meta"]["draws"] == {"III": 1} and len(data["rows"]) == 15
     assert "Table III" in (out / "study.md").read_text() and "Table III" in capsys.readouterr().out
     page = (out / "study.html").read_text()  # the study's page: every row in a table, Table III drawn
     assert page.count("<tr>") >= len(data["rows"]) and 'id="fig-table-iii"' in page

@@ -147,3 +147,13 @@ def test_mocap_study_on_dask_equals_serial(runner, tmp_path):
     assert row["n"] + row["failures"] == 2 and row["trials"] == 2
     assert [t["trial"] for t in serial["trials"]] == [0, 1]
     assert serial["meta"]["scheduler"] == "serial"
+
+
+def test_run_each_delivers_every_result_once_with_its_index(runner):
+    from rigcal.study.scale import MapReport
+
+    for r in (Runner(), runner):
+        got: dict[int, int] = {}
+        report = r.run_each(operator.mul, list(range(30)), shared=7, on_result=lambda i, v: got.setdefault(i, v))
+        assert got == {i: 7 * i for i in range(30)}
+        assert report == MapReport({})

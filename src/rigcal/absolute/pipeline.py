@@ -492,6 +492,7 @@ def _assemble(
             body_covariance=share,
             held=est.held,
             bounded=est.bounded,
+            bounded_set=est.bounded_set,
         )
     log.info(
         "absolute calibration: body frame wheelbase %.3f m, tracks %.3f / %.3f m, ground rms "

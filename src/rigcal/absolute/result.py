@@ -17,7 +17,7 @@ import numpy as np
 from rigcal.absolute.body_frame import BodyFrame
 from rigcal.dataset import SensorKind
 from rigcal.geometry.so3 import rpy_from_matrix
-from rigcal.problem.result import STD_KEYS, CalibrationResult
+from rigcal.problem.result import STD_KEYS, CalibrationResult, bounded_dict
 
 __all__ = [
     "AbsoluteResult",
@@ -95,7 +95,9 @@ class BodySensorEstimate:
     * ``std``: of x, y, z [m] and roll, pitch, yaw [deg] of ``T_body_sensor`` (first order);
     * ``held``: degrees of freedom the relative calibration held at their prior;
     * ``bounded``: directions only the field of view bounds (a 2D radar's roll, pitch, z about /
-      along its own axes: offsets from the estimate, deg / m), as in the relative calibration.
+      along its own axes: offsets from the estimate, deg / m), as in the relative calibration,
+      with their set ``bounded_set``; :attr:`bounded_values` gives them as absolute values of
+      the body-frame pose table.
     """
 
     name: str
@@ -108,6 +110,15 @@ class BodySensorEstimate:
     body_covariance: np.ndarray
     held: tuple[str, ...] = ()
     bounded: Mapping[str, tuple[float, float]] = field(default_factory=dict)
+    bounded_set: Any = None
+
+    @property
+    def bounded_values(self) -> dict[str, tuple[float, float, float]]:
+        """The bounded directions as absolute values of ``T_body_sensor``'s pose table:
+        ``{key: (low, high, estimate)}`` (:func:`rigcal.problem.uncertainty.sensor_bounded_values`)."""
+        from rigcal.problem.uncertainty import sensor_bounded_values
+
+        return sensor_bounded_values(self.T_body_sensor, self.std, self.bounded, self.bounded_set)
 
     def __post_init__(self) -> None:
         for name in ("T_body_sensor", "covariance", "relative_covariance", "body_covariance"):
@@ -225,7 +236,8 @@ class AbsoluteResult:
                 "std": {k: float(est.std[k]) for k in STD_KEYS},
                 "covariance": _matrix(est.covariance),
                 "held": list(est.held),
-                "bounded": {d: [float(lo), float(hi)] for d, (lo, hi) in est.bounded.items()},
+                "bounded": bounded_dict(est.bounded_values),
+                "bounded_offsets": {d: [float(lo), float(hi)] for d, (lo, hi) in est.bounded.items()},
             }
             for name, est in self.sensors.items()
         }

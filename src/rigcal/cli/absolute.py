@@ -38,8 +38,8 @@ def add_parser(sub) -> None:
                    help="hold every 2D radar's z, roll and pitch at the initial guess (with --initial: "
                    "the known mounting), as `rigcal calibrate --hold-radar-plane`")
     a.add_argument("--initial", metavar="FILE",
-                   help="initial guesses: a calibration.yaml whose reference is the external scanner "
-                   "(e.g. rigcal calibrate rig.yaml --reference NAME)")
+                   help="initial guesses: a calibration.yaml listing the external scanner (e.g. rigcal "
+                   "calibrate rig.yaml --reference NAME; poses are taken relative to the scanner)")
     a.add_argument("--out", required=True, metavar="DIR")
     a.add_argument("--json", action="store_true", help="print absolute.json on stdout")
     a.add_argument(
@@ -52,6 +52,10 @@ def add_parser(sub) -> None:
 def run(args, console) -> int:
     import math
 
+    from rigcal.io.atomic import check_output_folder
+
+    check_output_folder(args.out, inputs=tuple(p for p in (args.manifest, args.scan, args.labels, args.initial) if p))
+
     from rigcal.absolute.evaluate import ground_normal_angle
     from rigcal.absolute.labels import parse_labels_csv, parse_labels_yaml
     from rigcal.absolute.pipeline import absolute_calibration
@@ -63,7 +67,7 @@ def run(args, console) -> int:
     from rigcal.io.results.report import write_report
     from rigcal.report.data import absolute_report
     from rigcal.io.atomic import staged_folder
-    from rigcal.io.results.calibration_files import read_initial_poses
+    from rigcal.cli.calibrate import initial_poses_from
     from rigcal.problem.calibrate import CalibrationOptions
     from rigcal.io.dataset.manifest import load_manifest
     from rigcal.io.clouds import read_point_cloud
@@ -85,7 +89,7 @@ def run(args, console) -> int:
         label_sigma_m=None if args.label_sigma_mm is None else args.label_sigma_mm / 1000.0,
         options=CalibrationOptions(
             hold_radar_plane=args.hold_radar_plane,
-            initial=read_initial_poses(args.initial) if args.initial else None,
+            initial=initial_poses_from(args.initial, dataset, args.external) if args.initial else None,
         ),
     )
     ground = {name: ground_normal_angle(pts, result.T_body_sensor(name)) for name, pts in checks}

@@ -1,52 +1,72 @@
 """``rigcal calibrate --batch DIR...``: one calibration per dataset (a fleet of vehicles), as
-Dask tasks (:mod:`rigcal.study.scale`).
+Dask tasks (:func:`rigcal.fleet.run_fleet` on :mod:`rigcal.study.scale`).
 
 Each DIR holds a ``rig.yaml`` manifest (:data:`rigcal.io.dataset.manifest.MANIFEST_NAME`). The
 manifests are read here, the calibrations run as tasks (workers only compute: they touch no
-file), and each result is written here to ``OUT/<DIR's name>/`` exactly as ``rigcal calibrate
-DIR --out OUT/<name>`` writes it (atomically; a flagged result only with ``--force``). A
-dataset that cannot be read or calibrated is reported and skipped; a summary table ends the
-run. Exit code: 0 all written and consistent; 3 some flagged; 4 some failed (the rest written);
-1 none calibrated.
+file), and each result is written here, as soon as it arrives, to ``OUT/<DIR's name>/``
+(the name as given: a symlink keeps its own) exactly as ``rigcal calibrate DIR --out
+OUT/<name>`` writes it (atomically; a flagged result only with ``--force``). A plain file among
+the DIRs is skipped with a note; a dataset that is not there, cannot be read or calibrated, or
+whose output folder is taken is reported and skipped; a summary table ends the run. A lost
+worker's datasets run again; a lost scheduler ends the run with one line naming the datasets
+not calibrated (the others are written). Exit code: 0 all written and consistent; 3 some
+flagged; 4 some failed or missing (the rest written); 1 none calibrated.
 """
 
 from __future__ import annotations
 
 import sys
 from pathlib import Path
-from typing import NamedTuple
 
 from rigcal.cli.codes import EXIT_FLAGGED, EXIT_PARTIAL
-from rigcal.errors import InputError, RigcalError
+from rigcal.errors import InputError, printable
 
-
-class Outcome(NamedTuple):
-    """A dataset's calibration in a batch: the result, or why there is none."""
-
-    name: str
-    result: object | None
-    error: str | None
+#: statuses of a written dataset (:func:`rigcal.fleet.run_fleet` adds failed and missing)
+WRITTEN, FORCED, NOT_WRITTEN = "written", "flagged, written (--force)", "flagged, not written"
 
 
 def calibrate_task(options, dataset):
-    """One task of a batch: ``calibrate(dataset, options)``, or the error's message."""
+    """One task of a batch: ``calibrate(dataset, options)`` (a RigcalError is that dataset's
+    failure, :func:`rigcal.fleet.run_fleet`)."""
     from rigcal.problem.calibrate import calibrate
 
-    try:
-        return calibrate(dataset, options), None
-    except RigcalError as exc:
-        return None, str(exc)
+    return calibrate(dataset, options)
 
 
-def _names(dirs) -> list[str]:
-    names = [Path(d).resolve().name if Path(d).is_dir() else Path(d).resolve().parent.name for d in dirs]
-    seen: dict[str, str] = {}
-    for d, n in zip(dirs, names):
-        if n in seen:
-            raise InputError(f"--batch: {seen[n]} and {d} would both write to OUT/{n}/; give datasets "
-                             "with different folder names")
-        seen[n] = d
-    return names
+def _check_out(out: Path, entries) -> list:
+    """Refuse an unusable ``--out`` before any work (a file, a dataset folder itself, a place
+    that cannot be written); returns the entries, those whose ``OUT/<name>/`` is taken (a
+    folder holding files rigcal did not write) marked with that problem."""
+    import os
+
+    from rigcal.io.atomic import check_output_folder, check_replaceable
+    from rigcal.io.limits import path_stat
+
+    st = path_stat(out, "--out")
+    if st is not None and not out.is_dir():
+        raise InputError(f"--out {out}: exists and is not a folder; --batch writes OUT/<dataset>/ folders into it")
+    if st is None:
+        check_output_folder(out)  # its parent can be written
+    elif not os.access(out, os.W_OK | os.X_OK):
+        raise InputError(f"--out {out}: no permission to write in it")
+    checked = []
+    for e in entries:
+        if e.problem is None:
+            target = out / e.name
+            for candidate in (out, target):
+                try:
+                    same = os.path.samefile(candidate, e.path)
+                except (OSError, ValueError):
+                    same = False
+                if same:
+                    raise InputError(f"--out {out}: {candidate} is the dataset folder {e.path}; give another "
+                                     "output folder")
+            try:
+                check_replaceable(target)
+            except InputError as exc:
+                e = e._replace(problem=f"output folder {exc}")
+        checked.append(e)
+    return checked
 
 
 def run_batch(args, console) -> int:
@@ -54,68 +74,86 @@ def run_batch(args, console) -> int:
 
     from rigcal.cli.calibrate import options_from
     from rigcal.cli.output import progress_bar, table
+    from rigcal.fleet import FAILED, MISSING, fleet_entries, run_fleet
     from rigcal.io.atomic import staged_folder
     from rigcal.io.dataset.manifest import load_manifest
     from rigcal.io.results.calibration import result_to_json_text
     from rigcal.io.results.report import write_calibration_set
-    from rigcal.study.scale import task_runner
+    from rigcal.study.scale import LOCAL, SERIAL, check_scheduler
+    from rich.markup import escape
 
     if args.manifest or args.rig or args.lidar or args.camera or args.radar or args.radar3d or args.ignore:
         raise InputError("--batch takes dataset folders only: no MANIFEST, --rig, --lidar/--camera/--radar "
                          "or --ignore with it")
-    names = _names(args.batch)
-    options = options_from(args)
-    datasets, outcomes = {}, {}
-    for d, name in zip(args.batch, names):
-        try:
-            datasets[name] = load_manifest(d)
-        except RigcalError as exc:
-            outcomes[name] = Outcome(name, None, str(exc))
-    todo = [n for n in names if n in datasets]
-    with progress_bar(console) as bar:
-        task = bar.add_task("calibrating", total=len(todo), unit="datasets")
-        with task_runner(args.scheduler) as runner:
-            done = runner.map(calibrate_task, [datasets[n] for n in todo], shared=options, name="calibrate",
-                              progress=lambda d, t: bar.update(task, completed=d, total=t))
-    for name, (result, error) in zip(todo, done):
-        outcomes[name] = Outcome(name, result, error)
     out = Path(args.out)
-    status: dict[str, str] = {}
-    for name in names:
-        o = outcomes[name]
-        if o.result is None:
-            status[name] = "failed"
-            continue
-        if o.result.flagged and not args.force:
-            status[name] = "flagged, not written"
-            continue
-        try:
-            with staged_folder(out / name) as stage:
-                write_calibration_set(o.result, datasets[name], stage)
-        except RigcalError as exc:
-            outcomes[name] = Outcome(name, None, str(exc))
-            status[name] = "failed"
-            continue
-        status[name] = "flagged, written (--force)" if o.result.flagged else "written"
-    t = table(f"calibrate --batch: {len(names)} datasets, mode {args.mode}",
+    entries, notes = fleet_entries(args.batch)
+    entries = _check_out(out, entries)
+    if args.scheduler.strip() not in (LOCAL, SERIAL):
+        check_scheduler(args.scheduler.strip())  # before anything is read or computed
+    options = options_from(args)
+    for note in notes:
+        console.print(f"note: {note}", markup=False, soft_wrap=True)
+    if not entries:
+        raise InputError("--batch: no dataset folder among the arguments (" + ", ".join(printable(a)
+                         for a in args.batch[:3]) + (", ..." if len(args.batch) > 3 else "") + ")")
+
+    def write(entry, dataset, result) -> str:
+        if result.flagged and not args.force:
+            return NOT_WRITTEN
+        with staged_folder(out / entry.name) as stage:
+            write_calibration_set(result, dataset, stage)
+        return FORCED if result.flagged else WRITTEN
+
+    with progress_bar(console) as bar:
+        task = bar.add_task("calibrating", total=len(entries), unit="datasets")
+        run = run_fleet(entries, lambda e: load_manifest(e.path), calibrate_task, write, shared=options,
+                        scheduler=args.scheduler, name="calibrate",
+                        progress=lambda d, t: bar.update(task, completed=d, total=t))
+    t = table(f"calibrate --batch: {len(entries)} datasets, mode {args.mode}",
               ("dataset", "status", "RMSE per pair (mm) / error"))
-    for name in names:
-        o = outcomes[name]
-        detail = (o.error or "") if o.result is None else ", ".join(
-            f"{p} {v * 1000:.2f}" for p, v in o.result.rmse_m.items())
-        t.add_row(name, status[name], detail)
+    for o in run.outcomes:
+        detail = printable(o.error or "") if o.status in (FAILED, MISSING) else ", ".join(
+            f"{p} {v * 1000:.2f}" for p, v in o.value.rmse_m.items())
+        t.add_row(escape(printable(o.entry.name)), o.status, escape(detail))  # a name or path "a[/b]" is no markup
     console.print(t)
     if args.json:
-        doc = [{"dataset": n, "status": status[n], "error": outcomes[n].error,
-                "result": json.loads(result_to_json_text(outcomes[n].result)) if outcomes[n].result else None}
-               for n in names]
+        doc = [{"dataset": o.entry.name, "folder": str(o.entry.path), "status": o.status, "error": o.error,
+                "result": json.loads(result_to_json_text(o.value)) if o.value is not None else None}
+               for o in run.outcomes]
         sys.stdout.write(json.dumps(doc, indent=1) + "\n")
-    failed = [n for n in names if status[n] == "failed"]
-    flagged = [n for n in names if status[n].startswith("flagged")]
-    console.print(f"{len(names) - len(failed) - len(flagged)} consistent, {len(flagged)} flagged, "
-                  f"{len(failed)} failed; results in {out}/<dataset>/")
-    if len(failed) == len(names):
+    failed = [o for o in run.outcomes if o.status in (FAILED, MISSING)]
+    flagged = [o for o in run.outcomes if o.status in (NOT_WRITTEN, FORCED)]
+    written = [o for o in run.outcomes if o.status in (WRITTEN, FORCED)]
+    console.print(f"{len(entries) - len(failed) - len(flagged)} consistent, {len(flagged)} flagged, "
+                  f"{len(failed)} failed; results in {printable(out)}/<dataset>/", markup=False, soft_wrap=True)
+    if failed:  # one line on stderr says what is missing
+        sys.stderr.write(f"rigcal: error: {_missing_line(run, failed, written, out, args.scheduler)}\n")
+    if len(failed) == len(entries):
         return 1
     if flagged:
         return EXIT_FLAGGED
     return EXIT_PARTIAL if failed else 0
+
+
+def _names(outcomes, limit: int = 8) -> str:
+    names = [printable(o.entry.name) for o in outcomes]
+    return ", ".join(names[:limit]) + (f", ... ({len(names)} in all)" if len(names) > limit else "")
+
+
+def _missing_line(run, failed, written, out: Path, scheduler: str) -> str:
+    """The one line that ends a batch with datasets not calibrated: which, and why in short (the
+    table has each one's reason)."""
+    from rigcal.fleet import MISSING
+
+    missing = [o for o in failed if o.status == MISSING]
+    others = [o for o in failed if o.status != MISSING]
+    parts = []
+    if run.lost:
+        parts.append(f"--scheduler {printable(scheduler)}: {run.lost}; not calibrated: {_names(missing)}")
+    elif missing:
+        parts.append(f"not calibrated: {_names(missing)} ({printable(missing[0].error)})")
+    if others:
+        parts.append(f"failed: {_names(others)} (see the table)")
+    total = len(run.outcomes)
+    done = f"{len(written)} of {total} datasets written" + (f", complete, in {printable(out)}/" if written else "")
+    return "; ".join(parts) + f"; {done}"

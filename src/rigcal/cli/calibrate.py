@@ -4,6 +4,7 @@ recording detected first with ``--rig``)."""
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 from rigcal.cli.args import count, subcommand
 
@@ -11,15 +12,19 @@ EPILOG = """examples:
   rigcal calibrate rig.yaml --mode fcpe --out results/
   rigcal calibrate rig.yaml --mode pse --reference lidar1 --out results/ --json
   rigcal calibrate --lidar lidar.csv --camera camera.csv --radar radar.csv --mode fcpe --out results/
+  rigcal calibrate recording.bag --rig detect_rig.yaml --out results/   # detections kept in results/detections/
+  rigcal calibrate results/detections/rig.yaml --mode pse --out results_pse/   # no detection again
   rigcal calibrate --batch fleet/car01 fleet/car02 fleet/car03 --out results/   # results/car01/ ...
   rigcal calibrate --batch fleet/* --out results/ --scheduler tcp://10.0.0.5:8786
+  rigcal calibrate rig.yaml --initial robot.urdf --prior radar1:z_m=0.02,roll_deg=1,pitch_deg=1 --out results/
 
 writes calibration.yaml, <sensor>.yaml, calibration.launch and report.html (open it in a
 browser: verdict, poses, residuals, 3D detections, coverage; works offline)
 
 exit codes: 0 consistent result written; 1 error; 2 usage; 3 the result contradicts its own
-noise model (nothing written unless --force); with --batch: 4 some datasets failed (the others
-are written), 3 some were flagged, 1 all failed
+noise model (nothing written unless --force); with --batch: 4 some datasets failed or were
+lost with the scheduler (the others are written; one line names them), 3 some were flagged,
+1 all failed
 """
 
 #: --scheduler's help (:mod:`rigcal.study.scale`; not imported by the parser)
@@ -41,7 +46,11 @@ def add_parser(sub) -> None:
         "manifest", nargs="?",
         help="rig.yaml manifest (or a folder holding one); with --rig, a recording to detect first",
     )
-    c.add_argument("--rig", metavar="RIG_YAML", help="detection rig: treat MANIFEST as a recording, detect, then calibrate")
+    c.add_argument("--rig", metavar="RIG_YAML", help="detection rig: treat MANIFEST as a recording, detect, then calibrate "
+                   "(the detections are kept in OUT/detections/, to calibrate again without detecting)")
+    c.add_argument("--keep-detections", metavar="DIR",
+                   help="with --rig: keep the detections (rig.yaml + one CSV per sensor) in DIR instead of "
+                   "OUT/detections/, written before calibrating (also when the result is flagged)")
     c.add_argument("--lidar", action="append", default=[], metavar="FILE", help="lidar detections (repeatable)")
     c.add_argument("--camera", action="append", default=[], metavar="FILE", help="camera detections (repeatable)")
     c.add_argument("--radar", action="append", default=[], metavar="FILE", help="2D radar detections (repeatable)")
@@ -51,8 +60,9 @@ def add_parser(sub) -> None:
     c.add_argument(
         "--batch", nargs="+", metavar="DIR",
         help="calibrate many datasets (e.g. a fleet of vehicles), each DIR holding a rig.yaml "
-        "manifest; results go to OUT/<DIR's name>/, one failing dataset does not stop the others, "
-        "a summary table ends the run",
+        "manifest; results go to OUT/<DIR's name>/ (the name as given), each written as it is "
+        "calibrated; plain files are skipped with a note, one failing dataset does not stop the "
+        "others, a summary table ends the run (docs/fleet.md)",
     )
     c.add_argument("--scheduler", default="local", metavar="local|serial|ADDRESS", help=SCHEDULER_HELP)
     c.add_argument("--out", required=True, metavar="DIR", help="output folder")
@@ -62,9 +72,21 @@ def add_parser(sub) -> None:
     c.add_argument(
         "--hold-radar-plane",
         action="store_true",
-        help="hold each 2D radar's z, roll and pitch at the initial guess",
+        help="hold each 2D radar's z, roll and pitch at the initial guess (the limit of a prior "
+        "z_m=0,roll_deg=0,pitch_deg=0)",
     )
-    c.add_argument("--initial", metavar="FILE", help="initial guesses: a previous calibration.yaml")
+    c.add_argument(
+        "--prior", action="append", default=[], metavar="[SENSOR:]KEY=TOL,...",
+        help="soft prior around the --initial pose: 1-sigma tolerances along / about the sensor's "
+        "own axes, keys x_m y_m z_m roll_deg pitch_deg yaw_deg (0 holds a direction); without "
+        "SENSOR: for every sensor without its own prior (the manifest's 'prior'); repeatable. "
+        "docs/uncertainty.md",
+    )
+    c.add_argument("--initial", metavar="FILE",
+                   help="initial guesses (nominal poses, which mounting priors are around): a previous "
+                   "calibration.yaml, or the robot's URDF (each sensor at the link its frame_id names; "
+                   "cameras: the optical frame; the written files then name frames by that URDF, as "
+                   "`rigcal urdf` does)")
     c.add_argument("--cv-folds", type=count(0, 1000), default=5, metavar="N", help="leave-boards-out folds (0 = off)")
     plot = c.add_mutually_exclusive_group()
     plot.add_argument("--plot", action="store_true",
@@ -83,19 +105,65 @@ def add_parser(sub) -> None:
     c.set_defaults(func=run)
 
 
-def options_from(args):
-    """The :class:`CalibrationOptions` the command-line options ask for."""
+def initial_poses_from(path: str, dataset, reference: str | None):
+    """``{sensor: T_reference_sensor}`` nominal poses from ``--initial`` (a calibration.yaml or
+    the robot's URDF, :func:`rigcal.io.results.calibration_files.read_initial_poses`) for
+    ``dataset``, relative to its reference (``reference`` or the dataset's default)."""
     from rigcal.io.results.calibration_files import read_initial_poses
-    from rigcal.problem.calibrate import CalibrationOptions
+    from rigcal.problem.initialise import default_reference
 
+    if dataset is None:
+        from rigcal.io.results.calibration_files import initial_is_urdf
+
+        if initial_is_urdf(path):
+            from rigcal.errors import InputError
+
+            raise InputError(f"--initial {path}: a URDF needs one rig's sensors; with --batch give a "
+                             "calibration.yaml, or calibrate each dataset on its own")
+        return read_initial_poses(path)
+    return read_initial_poses(path, dataset.sensors, reference or default_reference(dataset))
+
+
+def initial_urdf(args):
+    """The parsed URDF of ``--initial`` when it is one (else None): the written files name
+    frames by it."""
+    from rigcal.io.results.calibration_files import initial_is_urdf
+
+    if not getattr(args, "initial", None) or not initial_is_urdf(args.initial):
+        return None
+    from rigcal.io.results.urdf import read_urdf
+
+    return read_urdf(args.initial)
+
+
+def options_from(args, dataset=None):
+    """The :class:`CalibrationOptions` the command-line options ask for (``dataset``: the rig,
+    needed to read nominal poses from a URDF)."""
+    from rigcal.errors import InputError
+    from rigcal.problem.calibrate import CalibrationOptions
+    from rigcal.problem.priors import parse_prior_text
+
+    default, per_sensor = None, {}
+    for text in getattr(args, "prior", None) or []:
+        sensor, prior = parse_prior_text(text)
+        if sensor is None:
+            if default is not None:
+                raise InputError(f"--prior {text!r}: a second default prior (give one, or SENSOR:...)")
+            default = prior
+        elif sensor in per_sensor:
+            raise InputError(f"--prior {text!r}: a second prior for '{sensor}'")
+        else:
+            per_sensor[sensor] = prior
     return CalibrationOptions(
         mode=args.mode,
         reference=args.reference,
         detect_outliers=not args.keep_outliers,
         hold_radar_plane=args.hold_radar_plane,
-        initial=read_initial_poses(args.initial) if args.initial else None,
+        initial=initial_poses_from(args.initial, dataset, args.reference) if args.initial else None,
         cross_validation_folds=args.cv_folds,
         pse_noise=args.pse_noise,
+        prior=default,
+        priors=per_sensor or None,
     )
 
 
@@ -119,15 +187,27 @@ def run(args, console) -> int:
     from rigcal.io.results.report import write_calibration_set
     from rigcal.problem.calibrate import calibrate
 
+    from rigcal.stages import StageClock, log
+
     files = args.lidar or args.camera or args.radar or args.radar3d
+    inputs = (args.manifest, args.rig, args.initial, args.ignore, *args.lidar, *args.camera, *args.radar, *args.radar3d)
+    from rigcal.io.atomic import check_output_folder
+
+    check_output_folder(args.out, inputs=tuple(p for p in inputs if p))  # before any work
     if args.manifest and files:
         raise InputError("give either a manifest or --lidar/--camera/--radar files, not both")
     detection = None
+    clock = StageClock()
     if args.rig:
         if not args.manifest or files:
             raise InputError("--rig needs a recording as the positional argument (and no --lidar/--camera/--radar)")
         detection = detect_recording(args.manifest, args.rig, console)
         dataset = detection.dataset
+        clock.lap(f"detecting the board in {args.manifest}")
+        if args.keep_detections:
+            kept = keep_detections(dataset, args.keep_detections)
+    elif args.keep_detections:
+        raise InputError("--keep-detections applies to a recording detected with --rig")
     elif args.manifest:
         dataset = load_manifest(args.manifest)
     elif files:
@@ -138,23 +218,85 @@ def run(args, console) -> int:
         raise InputError("no input: give a rig.yaml manifest or --lidar/--camera/--radar files")
     if args.ignore:
         dataset = dataset.with_excluded(read_ignore_file(args.ignore, dataset))
-    result = calibrate(dataset, options_from(args))
+    if detection is None:
+        clock.lap(f"reading {len(dataset.sensors)} sensors x {dataset.num_boards} boards")
+    log.info("calibrating: %s, reference %s", args.mode.upper(), args.reference or "the default")
+    if args.plot:  # before the work, not after it
+        from rigcal.extras import require
+
+        require("matplotlib", "--plot (calibration.png)")
+    urdf = initial_urdf(args)
+    result = calibrate(dataset, options_from(args, dataset))
+    clock.lap(f"calibration ({result.mode.upper()}, reference {result.reference}, verdict {result.verdict.status if result.verdict else 'not checked'})")
     if result.flagged and not args.force:
         summary(result, console)
-        return not_written(console)
+        code = not_written(console)
+        if detection is not None:
+            rerun_hint(args, kept if args.keep_detections else None, dataset, console)
+        return code
     # raw data: the lidar scans on the camera images, for the report
     raw = raw_images(args.manifest, args.rig, detection, result) if detection is not None else None
     with staged_folder(args.out) as stage:
-        write_calibration_set(result, dataset, stage, raw)
+        write_calibration_set(result, dataset, stage, raw, urdf=urdf)
+        if detection is not None and not args.keep_detections:
+            from rigcal.io.dataset.manifest import write_dataset
+
+            write_dataset(detection.dataset, stage / DETECTIONS_DIR)
+            kept = Path(args.out) / DETECTIONS_DIR / "rig.yaml"
         if args.plot:
             from rigcal.report.plot import plot_calibration
 
             plot_calibration(dataset, result, stage / "calibration.png")
+    clock.lap(f"writing {args.out}/")
     if args.json:
         sys.stdout.write(result_to_json_text(result) + "\n")
     summary(result, console)
+    if urdf is None:  # calibration.launch names cameras by rule 2 of the frame contract
+        from rigcal.io.results.calibration import calibration_transforms
+        from rigcal.io.results.frames import plan_with_checks
+
+        for w in plan_with_checks(calibration_transforms(result))[1]:
+            console.print(f"[yellow]warning:[/yellow] {w}")
+    else:  # the written files keep the URDF's values for directions only bounded: say so
+        from rigcal.io.results.bounded import bounded_lines
+        from rigcal.io.results.calibration import calibration_transforms, frame_plan
+
+        for line in bounded_lines(calibration_transforms(result), frame_plan(result, urdf), args.initial):
+            console.print(line, markup=False, highlight=False, soft_wrap=True)
     console.print(f"results written to {args.out}/" + (" (FLAGGED, written with --force)" if result.flagged else ""))
+    if detection is not None:
+        rerun_hint(args, kept, dataset, console)
     return EXIT_FLAGGED if result.flagged else 0
+
+
+#: where ``calibrate RECORDING --rig`` keeps the detections inside --out
+DETECTIONS_DIR = "detections"
+
+
+def keep_detections(dataset, folder: str) -> Path:
+    """Write ``dataset`` (rig.yaml + CSVs) as the folder ``folder`` (a whole set, atomically);
+    the path of its rig.yaml."""
+    from rigcal.io.atomic import staged_folder
+    from rigcal.io.dataset.manifest import write_dataset
+
+    with staged_folder(folder) as stage:
+        name = write_dataset(dataset, stage).name
+    return Path(folder) / name
+
+
+def rerun_hint(args, kept: Path | None, dataset, console) -> None:
+    """Where the detections are, and the command that calibrates them in another mode (PSE
+    only for a rig with a lidar or camera)."""
+    if kept is None:
+        console.print("the detections were not kept (nothing was written): --keep-detections DIR keeps them "
+                      "whatever the verdict")
+        return
+    pse = any(s.kind.is_point_cloud for s in dataset.sensors)
+    other = next(m for m in ("pse", "fcpe", "mcpe") if m != args.mode and (pse or m != "pse"))
+    out = Path(args.out)
+    console.print(f"detections kept in {kept}; another mode without detecting again:", soft_wrap=True)
+    console.print(f"  rigcal calibrate {kept} --mode {other} --out {out.parent / (out.name + '_' + other)}",
+                  soft_wrap=True, markup=False, highlight=False)
 
 
 def raw_images(recording_path: str, rig_path: str, detection, result) -> list:

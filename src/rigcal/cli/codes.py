@@ -1,7 +1,9 @@
 """Exit codes of the ``rigcal`` command (light: imported before any command runs).
 
 0 calibrated and consistent; 1 error (bad input, or the data cannot determine the result);
-2 command-line usage; 3 flagged; 4 partial; 130 interrupted (Ctrl-C); 143 terminated (SIGTERM).
+2 command-line usage; 3 flagged; 4 partial; 6 moved (``rigcal check`` / ``diff``: a sensor moved);
+7 cannot tell (``check`` / ``diff``: no sensor moved, but some could not be told); 130 interrupted
+(Ctrl-C); 143 terminated (SIGTERM).
 """
 
 from __future__ import annotations
@@ -10,6 +12,11 @@ from __future__ import annotations
 EXIT_FLAGGED = 3
 #: exit code of a partial result: some sensors calibrated (and written), others not (rigcal mocap)
 EXIT_PARTIAL = 4
+#: exit code of ``rigcal check`` / ``rigcal diff`` when a sensor moved (the calibration is stale)
+EXIT_MOVED = 6
+#: exit code of ``rigcal check`` / ``rigcal diff`` when no sensor moved but some cannot be told
+#: (too few boards, no shared board, a sensor missing from the data)
+EXIT_CANNOT_TELL = 7
 EXIT_INTERRUPTED = 130  # Ctrl-C (128 + SIGINT)
 EXIT_TERMINATED = 143  # SIGTERM (128 + SIGTERM)
 
@@ -20,6 +27,8 @@ EXIT_CODES_HELP = f"""exit codes:
   2    command-line usage
   {EXIT_FLAGGED}    flagged: the result contradicts its own noise model (nothing written unless --force)
   {EXIT_PARTIAL}    partial (rigcal mocap): the other sensors calibrated and written, some not
+  {EXIT_MOVED}    moved (rigcal check / diff): a sensor moved since it was calibrated
+  {EXIT_CANNOT_TELL}    cannot tell (rigcal check / diff): nothing moved, but some sensor could not be told
   {EXIT_INTERRUPTED}  interrupted (Ctrl-C); nothing half-written is left
   {EXIT_TERMINATED}  terminated (SIGTERM); nothing half-written is left
 """

@@ -92,6 +92,11 @@ def print_demo(report, console) -> None:
             "z and tilt only through the elevation limit (see the warnings)."
         )
     console.print(f"outputs written to {report.out_dir}/")
+    modes = [o.mode for o in report.outcomes]
+    first = "fcpe" if "fcpe" in modes else modes[0]
+    others = ", ".join(f"{m}/" for m in modes if m != first)
+    console.print("open this page in a browser" + (f" (the other modes: {others})" if others else "") + ":")
+    console.print(str(report.out_dir / first / "report.html"), soft_wrap=True, markup=False, highlight=False)
 
 
 def print_mocap_demo(report, console) -> None:
@@ -127,6 +132,8 @@ def print_mocap_demo(report, console) -> None:
     # one line, to copy
     console.print(f"run it again with: rigcal mocap {report.scene_dir / 'mocap.yaml'} --out {report.results_dir}",
                   soft_wrap=True)
+    console.print("open this page in a browser:")
+    console.print(str(report.results_dir / "report.html"), soft_wrap=True, markup=False, highlight=False)
 
 
 def print_absolute_demo(report, console) -> None:
@@ -154,6 +161,8 @@ def print_absolute_demo(report, console) -> None:
     console.print(f"scene (dataset/, scan.pcd, wheels.yaml, vehicle.urdf) written to {report.scene_dir}/")
     console.print(f"absolute calibration written to {report.results_dir}/; calibrated URDF: {report.urdf_path}")
     console.print(f"run it again with: {report.command}", soft_wrap=True)
+    console.print("open this page in a browser:")
+    console.print(str(report.results_dir / "report.html"), soft_wrap=True, markup=False, highlight=False)
 
 
 def run(args, console) -> int:
@@ -178,8 +187,15 @@ def run(args, console) -> int:
             raise InputError(f"--mocap does not take {', '.join(others)} (it takes --out, --seed and --holds)")
     elif args.holds is not None:
         raise InputError("--holds applies only to the motion-capture demo (--mocap)")
+    if args.mocap or not (args.absolute or args.detections_only):
+        from rigcal.extras import require
+
+        require("cv2", "the raw-data demo (it renders and detects camera images; "
+                "--detections-only runs without it)" if not args.mocap else
+                "the motion-capture demo (it renders camera images)")
     out = Path(args.out)
-    units = {"detecting": "frames", "extracting targets": "frames"}
+    units = {"detecting": "frames", "extracting targets": "frames", "simulating raw data": "frames",
+             "calibrating MCPE, FCPE, PSE": "modes"}
     # the whole demo folder is written as one set: a new folder beside --out, renamed at the end
     with staged_folder(out) as stage:
         if args.absolute:

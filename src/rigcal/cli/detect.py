@@ -50,12 +50,16 @@ def detect_recording(recording_path: str, rig_path: str, console):
         t.add_row(name, str(st.frames), str(st.detections), fails, f"{st.placements}/{len(run.placements)}")
     console.print(t)
     console.print(f"{len(run.placements)} board placements found")
+    for note in run.notes:
+        console.print(f"note: {note}")
     return run
 
 
 def run(args, console) -> int:
-    from rigcal.io.atomic import staged_folder
+    from rigcal.io.atomic import check_output_folder, staged_folder
     from rigcal.io.dataset.manifest import write_dataset
+
+    check_output_folder(args.out, inputs=(args.recording, args.rig))  # before any work
 
     found = detect_recording(args.recording, args.rig, console)
     with staged_folder(args.out) as stage:

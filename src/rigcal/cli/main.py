@@ -1,16 +1,19 @@
 """``rigcal`` command line: parse -> run(args) -> int. Known errors become one line, exit 1.
 
-Each subcommand is a module of :mod:`rigcal.cli` (``calibrate``, ``detect``, ``absolute``,
-``mocap``, ``report``, ``study``, ``urdf``, ``export``, ``demo``) with ``add_parser(subparsers)`` and
-``run(args, console)``; a module imports numpy, scipy, OpenCV, rosbags, matplotlib and rich
-only inside ``run``, so ``rigcal --help`` and ``rigcal COMMAND --help`` start fast.
+Each subcommand is a module of :mod:`rigcal.cli` (``calibrate``, ``check``, ``diff``,
+``detect``, ``absolute``, ``mocap``, ``report``, ``study``, ``urdf``, ``export``, ``demo``) with
+``add_parser(subparsers)`` and ``run(args, console)``; a module imports numpy, scipy, OpenCV,
+rosbags, matplotlib and rich only inside ``run``, so ``rigcal --help`` and ``rigcal COMMAND
+--help`` start fast.
 
 Exit codes: 0 calibrated and consistent; 1 error (bad input, or the data cannot determine the
 result); 2 command-line usage; 3 the result contradicts its own noise model (flagged by the
 consistency check): nothing is written unless --force, which writes it with the verdict;
 4 partial (``rigcal mocap``): the other sensors were calibrated and written, but at least one
 sensor could not be and is reported as not calibrated with its reason (3 takes precedence);
-130 interrupted (Ctrl-C); 143 terminated (SIGTERM).
+6 moved (``rigcal check`` / ``diff``: a sensor moved since it was calibrated); 7 cannot tell
+(``check`` / ``diff``: no sensor moved, but some could not be told); 130 interrupted (Ctrl-C);
+143 terminated (SIGTERM).
 """
 
 from __future__ import annotations
@@ -22,7 +25,8 @@ import sys
 from typing import Sequence
 
 from rigcal import __version__, interrupts
-from rigcal.cli import absolute, calibrate, demo, detect, export, mocap, report, study, urdf
+from rigcal.cli.args import WrappedHelpFormatter
+from rigcal.cli import absolute, calibrate, check, demo, detect, diff, export, mocap, report, study, urdf
 from rigcal.cli.codes import (
     EXIT_CODES_HELP,
     EXIT_FLAGGED,
@@ -31,12 +35,12 @@ from rigcal.cli.codes import (
     EXIT_TERMINATED,
     Terminated,
 )
-from rigcal.errors import RigcalError
+from rigcal.errors import RigcalError, printable
 
 __all__ = ["EXIT_FLAGGED", "EXIT_INTERRUPTED", "EXIT_PARTIAL", "EXIT_TERMINATED", "Terminated", "entry", "run"]
 
 #: the subcommands, in the order ``rigcal --help`` lists them
-COMMANDS = (calibrate, detect, absolute, mocap, report, study, urdf, export, demo)
+COMMANDS = (calibrate, check, diff, detect, absolute, mocap, report, study, urdf, export, demo)
 
 EPILOG = f"""Run `rigcal COMMAND --help` for a command's options; -v/--verbose may come before or
 after COMMAND.
@@ -49,10 +53,11 @@ def _parser() -> argparse.ArgumentParser:
         prog="rigcal",
         description="Joint extrinsic calibration of lidar, camera and radar rigs.",
         epilog=EPILOG,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=WrappedHelpFormatter,
     )
     p.add_argument("--version", action="version", version=f"rigcal {__version__}")
-    p.add_argument("-v", "--verbose", action="store_true", help="log progress to stderr")
+    p.add_argument("-v", "--verbose", action="store_true",
+                   help="log each stage of the command with its time to stderr")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
     for command in COMMANDS:
         command.add_parser(sub)
@@ -71,7 +76,7 @@ def run(argv: Sequence[str] | None = None) -> int:
 
     parser = _parser()
     args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(message)s")
+    logging.basicConfig(level=logging.WARNING, format="%(message)s")
     if args.command is None:
         parser.print_help()
         return 2
@@ -85,15 +90,18 @@ def run(argv: Sequence[str] | None = None) -> int:
 
         # with --json, stdout carries only the JSON; the human summary goes to stderr
         console = make_console(to_stderr=bool(getattr(args, "json", False)))
-        with warnings.catch_warnings():
+        from rigcal.stages import stage, verbose_logging
+
+        with warnings.catch_warnings(), verbose_logging(args.verbose):
             if not args.verbose:
                 warnings.simplefilter("ignore", RuntimeWarning)
-            code = args.func(args, console)
+            with stage(f"rigcal {args.command}"):
+                code = args.func(args, console)
         if interrupts.requested():  # the interrupt was swallowed, yet the command finished
             return _interrupted(interrupts.requested())
         return code
     except RigcalError as exc:
-        sys.stderr.write(f"rigcal: error: {exc}\n")
+        sys.stderr.write(f"rigcal: error: {printable(exc)}\n")
         return 1
     except KeyboardInterrupt:
         return _interrupted(KeyboardInterrupt)
@@ -104,6 +112,17 @@ def run(argv: Sequence[str] | None = None) -> int:
         return 1
     except RecursionError:
         sys.stderr.write(f"rigcal: error: input nested too deeply for '{args.command}'\n")
+        return 1
+    except ModuleNotFoundError as exc:
+        # an optional package (rigcal.extras) imported where no early check named it
+        from rigcal.extras import missing_extra_message
+
+        if interrupts.requested():
+            return _interrupted(interrupts.requested())
+        message = missing_extra_message(exc.name or "", f"'rigcal {args.command}'")
+        if message is None:
+            raise
+        sys.stderr.write(f"rigcal: error: {message}\n")
         return 1
     except Exception:
         # The interrupt can arrive inside code that turns any exception into its own: a C
@@ -129,6 +148,8 @@ def _on_signal(signum, frame) -> None:
     raise it in the main thread as KeyboardInterrupt / Terminated."""
     exc_type = KeyboardInterrupt if signum == signal.SIGINT else Terminated
     interrupts.request(exc_type)
+    if interrupts.deferring():  # e.g. a Dask cluster starting: raised when it is whole
+        return
     raise exc_type()
 
 
@@ -150,23 +171,51 @@ def entry() -> None:
     except KeyboardInterrupt:  # Ctrl-C while the arguments were parsed
         sys.stderr.write("\nrigcal: interrupted\n")
         code = EXIT_INTERRUPTED
-    except Terminated:
+    except Terminated:  # SIGTERM while the arguments were parsed
+        sys.stderr.write("rigcal: terminated\n")
         code = EXIT_TERMINATED
-    if interrupts.requested():
-        _exit_now(code)
-    sys.exit(code)
+    except SystemExit as exc:  # argparse: --help, --version, a usage error (its message printed)
+        code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
+        if not isinstance(exc.code, (int, type(None))):
+            sys.stderr.write(f"{exc.code}\n")
+    _exit_now(code)
 
 
 def _exit_now(code: int) -> None:
-    """End an interrupted run without the interpreter's finalization. Its outputs were removed
-    or left whole on the way out (staged folders, atomic files, the Dask cluster in its
-    ``with``); what finalization would still run are the teardowns of extension modules, and an
-    interrupt that landed while one was being imported can leave it half initialised - its
-    teardown then aborts the process (seen once in CI: "Fatal Python error: PyThreadState_Get"
-    after "rigcal: interrupted", exit -6 instead of 130)."""
+    """End the run without the interpreter's finalization, whose teardown a signal must not
+    cut short: Python puts the default signal handlers back there, so a SIGTERM that landed
+    after the output was published killed the process with no line (exit -15). From here on
+    a signal is only noted; one that arrives before the end makes it exit 130 / 143 with its
+    line (the output stays, complete).
+
+    A run that finished runs its exit handlers (``atexit``); an interrupted one only
+    multiprocessing's (the semaphores of a Dask cluster's workers, else reported as leaked):
+    its outputs were removed or left whole on the way out (staged folders, atomic files, the
+    Dask cluster in its ``with``), and an interrupt that landed while an extension module was
+    being imported can leave it half initialised - its teardown then aborts the process (seen
+    once in CI: "Fatal Python error: PyThreadState_Get" after "rigcal: interrupted", exit -6
+    instead of 130)."""
+    import atexit
     import os
 
-    logging.shutdown()
+    late: list[int] = []
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        try:
+            signal.signal(sig, lambda signum, frame: late.append(signum))
+        except ValueError:  # not the main thread (an embedding application): nothing to guard
+            pass
+    if interrupts.requested():
+        mp = sys.modules.get("multiprocessing.util")
+        if mp is not None:
+            try:
+                mp._exit_function()
+            except Exception:  # noqa: BLE001 - best effort on the way out
+                pass
+        logging.shutdown()
+    else:
+        atexit._run_exitfuncs()
+        if late:
+            code = _interrupted(KeyboardInterrupt if late[0] == signal.SIGINT else Terminated)
     for stream in (sys.stdout, sys.stderr):
         try:
             stream.flush()

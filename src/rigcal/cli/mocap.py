@@ -63,6 +63,10 @@ def measurements_table(run):
 def run(args, console) -> int:
     from rich.markup import escape
 
+    from rigcal.io.atomic import check_output_folder
+
+    check_output_folder(args.out, inputs=(args.config,))  # before any work
+
     from rigcal.cli.codes import EXIT_FLAGGED, EXIT_PARTIAL
     from rigcal.cli.output import not_written, progress_bar, summary, verdict_lines
     from rigcal.io.atomic import staged_folder

@@ -46,10 +46,12 @@ class PlainProgress:
     :meth:`add_task` and :meth:`update`.
     """
 
-    def __init__(self, console, every_s: float = 5.0, clock: Callable[[], float] = time.monotonic):
+    def __init__(self, console, every_s: float = 5.0, clock: Callable[[], float] = time.monotonic,
+                 eta: bool = False):
         self.console = console
         self.every_s = every_s
         self.clock = clock
+        self.eta = eta  # each line also says the time elapsed and the time left
         self._tasks: list[dict] = []
 
     def __enter__(self) -> PlainProgress:
@@ -97,6 +99,9 @@ class PlainProgress:
         now = self.clock()
         if final:
             text += f", {now - task['start']:.1f} s"
+        elif self.eta and total and done:
+            elapsed = now - task["start"]
+            text += f", {elapsed:.0f} s elapsed, about {elapsed * (total - done) / done:.0f} s left"
         self.console.print(text, markup=False, highlight=False, soft_wrap=True)
         task["last"] = now
         task["final"] = final
@@ -105,12 +110,12 @@ class PlainProgress:
 def progress_bar(console, eta: bool = False):
     """The progress every long command shows: a live bar on a terminal, plain lines elsewhere."""
     if not console.is_terminal:
-        return PlainProgress(console)
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeRemainingColumn
+        return PlainProgress(console, eta=eta)
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn, TimeRemainingColumn
 
     columns = ["[progress.description]{task.description}", BarColumn(), MofNCompleteColumn()]
     if eta:
-        columns.append(TimeRemainingColumn())
+        columns += [TimeElapsedColumn(), TimeRemainingColumn()]
     return Progress(*columns, console=console)
 
 
@@ -157,7 +162,8 @@ def pose_table(title: str, estimates, rpy_std_decimals: int = 2):
         x, y, z = est.xyz_m
         r, p, yw = est.rpy_deg
         s = est.std
-        bounded = getattr(est, "bounded", {}) or {}
+        values = getattr(est, "bounded_values", None)
+        bounded = (values if values is not None else getattr(est, "bounded", {})) or {}
 
         def cell(key: str, text: str) -> str:
             return "bnd" if key.split("_")[0] in bounded else text
@@ -169,6 +175,24 @@ def pose_table(title: str, estimates, rpy_std_decimals: int = 2):
             *(cell(k, f"{s[k]:.{rpy_std_decimals}f}") for k in ("roll_deg", "pitch_deg", "yaw_deg")),
         )
     return Group(poses, stds)
+
+
+def relative_table(relative):
+    """The relative transforms ``T_to_from`` between sensors, as :func:`pose_table` (std from
+    the same covariance as the poses, "bnd" where a bounded direction moves a value more than
+    its std), and a note per pair whose Euler angles are near gimbal lock (roll and yaw std
+    then mean little) with its rotation-vector std about the 'from' sensor's axes."""
+    from rich.console import Group
+    from rich.text import Text
+
+    rows = {f"{r.to} <- {r.frm}": r for r in relative.values()}
+    parts = [pose_table("relative transforms (T_to_from)", rows)]
+    locked = [f"{k}: pitch {r.rpy_deg[1]:+.1f} deg; rotation std about {r.frm}'s x, y, z "
+              f"{'/'.join(f'{v:.2f}' for v in r.rotation_std_deg)} deg"
+              for k, r in rows.items() if getattr(r, "gimbal_lock", False)]
+    if locked:
+        parts.append(Text("near gimbal lock (Euler roll and yaw ill-defined): " + "; ".join(locked)))
+    return Group(*parts)
 
 
 def verdict_lines(result, console) -> None:
@@ -216,6 +240,14 @@ def summary(result, console, verdict_first: bool = True) -> None:
     if verdict_first:
         verdict_lines(result, console)
     console.print(pose_table(f"{result.mode.upper()} - reference {result.reference}", result.sensors))
+    # every pair but those with the reference (the pose table above)
+    pairs = {k: r for k, r in getattr(result, "relative", {}).items() if result.reference not in (r.to, r.frm)}
+    if pairs:
+        console.print(relative_table(pairs))
+    priors = {n: e.prior for n, e in result.sensors.items() if getattr(e, "prior", None)}
+    if priors:
+        console.print("mounting priors (1 sigma around --initial; 0: held): " + "; ".join(
+            f"{n}: " + ", ".join(f"{k} {v:g}" for k, v in p.items()) for n, p in priors.items()))
     if result.mode == "mocap":
         _mocap_residuals(result, console)
         return

@@ -10,7 +10,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from rigcal.cli.args import count, number, subcommand
+from rigcal.cli.args import WrappedHelpFormatter, count, number, subcommand
 
 #: --scheduler (:mod:`rigcal.study.scale`; the parser must not import it)
 SCHEDULER_HELP = ("where the draws run: 'local' (default: a Dask LocalCluster, one worker process "
@@ -22,6 +22,11 @@ TARGETS = ("diamond", "cylinder")
 SENSORS = ("lidar", "camera")
 #: lidar point matching (:data:`rigcal.problem.mocap.CORRESPONDENCES`)
 CORRESPONDENCES = ("surface", "centroid")
+#: bounds of the options (a seed is a non-negative integer for numpy's SeedSequence; a mocap
+#: trial of 200 measurements takes minutes, the paper's largest is 30)
+MAX_SEED = 2**63 - 1
+MAX_TRIALS = 10000
+MAX_MEASUREMENTS = 200
 
 EPILOG = """examples:
   rigcal study mocap --trials 20
@@ -37,12 +42,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     """Add the ``rigcal study mocap`` options to ``parser``."""
     parser.add_argument("--target", choices=TARGETS, default="diamond", help="target (default diamond)")
     parser.add_argument("--sensor", choices=SENSORS, default="lidar", help="sensor to calibrate (default lidar)")
-    parser.add_argument("--trials", type=int, default=10, help="seeded trials (default 10)")
-    parser.add_argument("--measurements", type=int, nargs="+", default=[5, 15, 30], metavar="N",
-                        help="numbers of measurements per calibration (default 5 15 30)")
+    parser.add_argument("--trials", type=count(1, MAX_TRIALS), default=10,
+                        help=f"seeded trials (default 10; at most {MAX_TRIALS})")
+    parser.add_argument("--measurements", type=count(1, MAX_MEASUREMENTS), nargs="+", default=[5, 15, 30], metavar="N",
+                        help=f"numbers of measurements per calibration (default 5 15 30; at most {MAX_MEASUREMENTS}: "
+                        "a trial of 200 takes minutes)")
     parser.add_argument("--mcs-noise-mm", type=number(0.0, 1000.0), default=0.0,
                         help="motion-capture position noise per axis [mm] (default 0: exact; Vicon 0.15)")
-    parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    parser.add_argument("--seed", type=count(0, MAX_SEED), default=0, help="random seed (default 0; 0 to 2^63 - 1)")
     parser.add_argument("--overlapping", action="store_true", help="camera looks forward with the lidar")
     parser.add_argument("--lidar-measurement", choices=("keypoints", "points"), default="points",
                         help="lidar: every on-target point (default; the paper's choice on real data) or the "
@@ -65,7 +72,7 @@ def add_parser(sub) -> None:
         sub, "study",
         help="reproducible studies of the papers' experiments",
         description="Reproducible studies of the papers' simulated experiments.",
-        formatter_class=argparse.HelpFormatter,
+        formatter_class=WrappedHelpFormatter,
     )
     st_sub = st.add_subparsers(dest="study", metavar="STUDY")
     add_arguments(subcommand(
@@ -104,7 +111,7 @@ def add_parser(sub) -> None:
                     "Fig. 8 (default: the paper's 200 for Table III, 100 for the figures)")
     pr.add_argument("--boards", type=count(3, 1000), default=10,
                     help="boards per set of Table III and Fig. 8 (default 10; Fig. 7 varies it)")
-    pr.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    pr.add_argument("--seed", type=count(0, MAX_SEED), default=0, help="random seed (default 0; 0 to 2^63 - 1)")
     pr.add_argument("--out", metavar="DIR", help="write study.md, study.json and the figures' PNGs there")
     pr.add_argument("--scheduler", default="local", metavar="local|serial|ADDRESS", help=SCHEDULER_HELP)
     pr.add_argument("--json", action="store_true", help="print study.json on stdout instead of Markdown")
@@ -118,7 +125,7 @@ def mocap_parser() -> argparse.ArgumentParser:
         description="Reproduce Charron et al.'s simulated motion-capture calibration study (Tables "
         "I-III) on simulated VLP-16 scans or camera images, next to the paper's numbers.",
         epilog=EPILOG,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=WrappedHelpFormatter,
     )
     return add_arguments(p)
 
@@ -146,27 +153,37 @@ def run_prius(args, console) -> int:
 
     from rigcal.cli.output import progress_bar
     from rigcal.errors import InputError
-    from rigcal.io.atomic import staged_folder
+    from rigcal.io.atomic import check_output_folder, staged_folder
     from rigcal.io.dataset.manifest import load_manifest
     from rigcal.study import prius
-    from rigcal.study.scale import task_runner
+    from rigcal.study.scale import check_scheduler, task_runner
 
-    manifest = args.manifest
+    manifest, shown = args.manifest, args.manifest  # shown: in study.json, never made absolute
     if manifest is None:
         manifest = Path(__file__).resolve().parents[3] / "examples" / "prius" / "rig.yaml"
+        shown = "examples/prius/rig.yaml"
         if not manifest.is_file():
             raise InputError("no manifest given and examples/prius/rig.yaml not found beside the package")
+    if args.out:  # before the study, not after it
+        check_output_folder(args.out, inputs=(manifest,))
+    scheduler = args.scheduler if "II" != args.table else "serial"
+    if scheduler.strip() not in ("local", "serial"):
+        check_scheduler(scheduler.strip())
     dataset = load_manifest(manifest)
     if args.boards > dataset.num_boards:
         raise InputError(f"--boards {args.boards}: {manifest} has only {dataset.num_boards} boards")
     tables = ("II", "III", "fig7", "fig8") if args.table == "all" else (args.table,)
+    if args.out and {"fig7", "fig8"} & set(tables):  # before the draws, not after them
+        from rigcal.extras import require
+
+        require("matplotlib", "--out with Figs. 7/8 (fig7.png, fig8.png)")
     rows, seconds = [], {}
     with progress_bar(console) as bar:
         def progress(label):
             task = bar.add_task(label, total=None, unit="calibrations")
             return lambda d, t: bar.update(task, completed=d, total=t)
 
-        with task_runner(args.scheduler if "II" != args.table else "serial") as runner:
+        with task_runner(scheduler) as runner:
             if "II" in tables:
                 t0 = time.perf_counter()
                 rows += prius.table_ii(dataset, progress=progress("Table II"))
@@ -181,14 +198,7 @@ def run_prius(args, console) -> int:
                                           runner=runner, progress=progress(" + ".join(names[t] for t in drawn)))
                 seconds[" + ".join(drawn)] = round(time.perf_counter() - t0, 1)
             where = runner.description
-    meta = {"manifest": str(manifest), "draws": args.draws, "boards": args.boards, "seed": args.seed,
-            "draws_default": {"III": 200, "fig7": prius.FIGURE_DRAWS, "fig8": prius.FIGURE_DRAWS},
-            "rmse_on": {"median_mm": "all boards", "heldout_median_mm": "boards not in the draw",
-                        "fig8": "the noise-free detections"},
-            "fig7_k": list(prius.FIG7_K), "fig8_sigma_m": list(prius.FIG8_SIGMA_M),
-            "figure_configurations": "MCPE with the lidar as reference, PSE, FCPE (as the paper)",
-            "paper_mm": "from the paper's tables and text only; its Figs. 7 and 8 are plots (not read off)",
-            "scheduler": where, "wall_time_s": seconds}
+    meta = prius.study_meta(shown, tables, args.draws, args.boards, args.seed, where, seconds)
     text, data = prius.markdown(rows), prius.study_json(rows, meta)
     if args.out:
         import json
@@ -214,6 +224,10 @@ def run(args, console, parser: argparse.ArgumentParser) -> int:
     from rigcal.cli.output import progress_bar
     from rigcal.study.mocap_study import run as run_study
 
+    if args.out:  # before the trials, not after them
+        from rigcal.extras import require
+
+        require("matplotlib", "--out (mocap.png)")
     with progress_bar(console) as bar:
         task = bar.add_task("mocap study", total=None, unit="trials")
         text, code = run_study(args, progress=lambda d, t: bar.update(task, completed=d, total=t))

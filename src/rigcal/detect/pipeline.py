@@ -77,6 +77,9 @@ def build_detector(setup: SensorSetup, rig: DetectionRig, recording: RecordingLi
 
         cfg = _config(LidarDetectorConfig, setup.detector, where)
         return lambda f: detect_board_lidar(f, board, cfg)
+    from rigcal.extras import require
+
+    require("cv2", f"detecting the board in camera images (sensor '{setup.name}')")
     if setup.input == "mono":
         from rigcal.detect.mono import MonoDetectorConfig, detect_board_mono
 
@@ -113,9 +116,15 @@ def camera_model(setup: SensorSetup, rig: DetectionRig, recording: RecordingLike
     """The camera model of a detection rig's camera: from its intrinsics file, else from the
     recording's CameraInfo (the detector and the report's raw overlays use the same one)."""
     if setup.intrinsics is not None:
-        from rigcal.io.config.intrinsics import read_intrinsics
+        from rigcal.io.config.camchain import read_camera_file, select_camera
 
-        return read_intrinsics(setup.intrinsics)
+        where = f"{rig.source}: sensor '{setup.name}': intrinsics"
+        try:
+            return select_camera(read_camera_file(setup.intrinsics), str(setup.intrinsics),
+                                 camera=setup.camera, names=(setup.name, setup.frame_id),
+                                 topic=setup.topic)[1]
+        except InputError as exc:
+            raise InputError(f"{where}: {exc}") from None
     if recording is None or not hasattr(recording, "camera_info"):
         raise InputError(
             f"{rig.source}: sensor '{setup.name}': camera_info_topic needs a bag recording "
@@ -142,12 +151,38 @@ class SensorStats:
 
 @dataclass(frozen=True, eq=False)  # holds arrays: compare by identity
 class DetectionRun:
-    """Everything detection produced: per-sensor results, placements, the dataset, statistics."""
+    """Everything detection produced: per-sensor results, placements, the dataset, statistics;
+    ``frame_ids``: per sensor the ``header.frame_id`` its messages carried (absent when empty);
+    ``notes``: where the rig's frame_id and the messages' disagree."""
 
     results: Mapping[str, tuple[DetectionResult, ...]]
     placements: tuple[Placement, ...]
     dataset: Dataset
     stats: Mapping[str, SensorStats]
+    frame_ids: Mapping[str, str] = field(default_factory=dict)
+    notes: tuple[str, ...] = ()
+
+
+def sensor_frame_ids(rig: DetectionRig, seen: Mapping[str, Counter]) -> tuple[dict[str, str], list[str]]:
+    """Each sensor's frame_id: the rig's when given, else the (most common) ``header.frame_id``
+    of its messages, else its name; and a note per sensor whose rig frame_id differs from its
+    messages' or whose messages carry several."""
+    out: dict[str, str] = {}
+    notes: list[str] = []
+    for s in rig.sensors:
+        counts = seen.get(s.name, Counter())
+        message = counts.most_common(1)[0][0] if counts else ""
+        if len(counts) > 1:
+            notes.append(f"sensor '{s.name}': its messages carry several frame_ids "
+                         f"({', '.join(sorted(counts))}); using '{s.frame_id if s.frame_id_given else message}'")
+        if s.frame_id_given:
+            out[s.name] = s.frame_id
+            if message and message != s.frame_id:
+                notes.append(f"sensor '{s.name}': frame_id '{s.frame_id}' (rig) differs from its "
+                             f"messages' frame_id '{message}'; the rig's is used")
+        else:
+            out[s.name] = message.lstrip("/") or s.frame_id
+    return out, notes
 
 
 def _topics(setup: SensorSetup) -> dict[str, tuple[str, str]]:
@@ -239,8 +274,12 @@ def run_detection(
     pending: dict[str, dict] = {s.name: {"left": {}, "right": {}} for s in rig.sensors if s.input == "stereo_pair"}
     done = 0
     span: list[int] = []  # first and last frame time seen
+    seen_frames: dict[str, Counter] = {s.name: Counter() for s in rig.sensors}
     for frame in recording.frames(topics):
         done += 1
+        frame_id = getattr(frame, "frame_id", "")
+        if frame_id and not frame.sensor.endswith("#right"):  # a stereo pair: the left camera's
+            seen_frames[frame.sensor.split("#")[0]][frame_id] += 1
         span = [frame.t_ns, frame.t_ns] if not span else [min(span[0], frame.t_ns),
                                                           max(span[1], frame.t_ns)]
         name = frame.sensor.split("#")[0]
@@ -275,7 +314,8 @@ def run_detection(
     else:
         periods = {s: stable_periods(s, d, rig.stability, radar=kinds[s].is_radar) for s, d in ok.items()}
         placements = match_placements(periods, min_sensors=rig.min_sensors)
-    specs = [SensorSpec(s.name, s.kind, s.frame_id, s.max_elevation_rad) for s in rig.sensors]
+    frame_ids, notes = sensor_frame_ids(rig, seen_frames)
+    specs = [SensorSpec(s.name, s.kind, frame_ids[s.name], s.max_elevation_rad) for s in rig.sensors]
     if not placements:
         parts = []
         for s, d in ok.items():
@@ -305,4 +345,6 @@ def run_detection(
         placements=tuple(placements),
         dataset=dataset,
         stats=stats,
+        frame_ids={n: c.most_common(1)[0][0] for n, c in seen_frames.items() if c},
+        notes=tuple(notes),
     )

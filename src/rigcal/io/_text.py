@@ -99,8 +99,43 @@ def load_yaml(text: str, source: str) -> Any:
         raise InputError(
             f"{source}: YAML nested too deeply; expected a plain configuration document"
         ) from None
+    except (ValueError, OverflowError) as exc:
+        # a value the constructor cannot build: an integer of more than 4300 digits (Python's
+        # conversion limit), a date such as 2024-13-45
+        detail = " ".join(str(exc).split())
+        if "integer string conversion" in detail:
+            import re
+
+            digits = re.search(r"value has (\d+) digits", detail)
+            detail = (f"an integer of {digits.group(1) if digits else 'more than 4300'} digits (at most 4300 "
+                      "are read); expected numbers of ordinary size")
+        raise InputError(f"{source}: invalid YAML value: {detail[:200]}") from None
     finally:
         loader.dispose()
+
+
+def load_json(text: str, source: str, max_depth: int = YAML_MAX_DEPTH) -> Any:
+    """Parse JSON ``text``; InputError naming ``source`` for invalid JSON (with the line), an
+    integer of more digits than Python converts (4300), nesting deeper than ``max_depth``
+    (checked after parsing, without recursion, so later code may walk the value)."""
+    import json
+
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{source}: not valid JSON (line {exc.lineno}: {exc.msg})") from None
+    except ValueError as exc:  # "Exceeds the limit (4300 digits) for integer string conversion"
+        raise InputError(f"{source}: not a usable JSON document ({exc})") from None
+    except RecursionError:
+        raise InputError(f"{source}: JSON nested too deeply (more than {max_depth} levels expected at most)") from None
+    stack = [(data, 0)]
+    while stack:
+        value, depth = stack.pop()
+        if isinstance(value, (dict, list)):
+            if depth >= max_depth:
+                raise InputError(f"{source}: JSON nested more than {max_depth} levels deep")
+            stack.extend((v, depth + 1) for v in (value.values() if isinstance(value, dict) else value))
+    return data
 
 
 #: libyaml's emitter when PyYAML was built with it (about 5x faster), else the pure-Python one

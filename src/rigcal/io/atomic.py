@@ -128,6 +128,12 @@ def mark_output(folder: str | os.PathLike[str]) -> Path:
     return atomic_write_bytes(Path(folder) / OUTPUT_MARKER, b"written by rigcal as one set of files\n")
 
 
+def check_replaceable(path: str | os.PathLike[str]) -> None:
+    """InputError unless ``path`` is free for a set of files (:func:`staged_folder`): nothing
+    there, an empty folder, or a folder rigcal wrote (:data:`OUTPUT_MARKER`)."""
+    _replaceable(Path(path))
+
+
 def _replaceable(target: Path) -> None:
     try:
         st = target.stat()
@@ -149,6 +155,39 @@ def _replaceable(target: Path) -> None:
             f"{target}: output folder already holds files rigcal did not write ({shown}); "
             "give a new or empty folder"
         )
+
+
+def check_output_folder(path: str | os.PathLike[str], inputs: tuple = (), what: str = "--out") -> Path:
+    """Refuse, before any work, an output folder that :func:`staged_folder` would refuse after
+    it: a file there, a folder holding files rigcal did not write, one of ``inputs`` (paths the
+    run reads), or a place that cannot be written (its nearest existing parent is not a folder,
+    or not writable). Returns the path; InputError naming ``what`` and the path otherwise."""
+    target = Path(path)
+    st = path_stat(target, f"{what} folder")
+    for source in inputs:
+        try:
+            same = st is not None and os.path.samefile(target, source)
+            inside = st is not None and Path(target).resolve() in Path(source).resolve().parents
+        except (OSError, ValueError):
+            same = inside = False
+        if same or inside:
+            how = "is" if same else "holds"
+            raise InputError(f"{what} {target}: {how} an input of this run ({source}); give another output folder")
+    try:
+        _replaceable(target)
+    except InputError as exc:
+        raise InputError(f"{what} {exc}") from None
+    parent = target.absolute().parent
+    while True:
+        pst = path_stat(parent, f"{what} folder's parent")
+        if pst is not None or parent == parent.parent:
+            break
+        parent = parent.parent
+    if pst is None or not stat.S_ISDIR(pst.st_mode):
+        raise InputError(f"{what} {target}: cannot create it: {parent} is not a folder")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise InputError(f"{what} {target}: cannot create it: no permission to write in {parent}")
+    return target
 
 
 def _exchange(a: Path, b: Path) -> bool:

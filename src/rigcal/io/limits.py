@@ -85,7 +85,7 @@ def path_stat(path: str | os.PathLike[str], what: str = "file") -> os.stat_resul
     except (FileNotFoundError, NotADirectoryError):
         return None
     except (OSError, ValueError) as exc:  # ValueError: an embedded NUL byte
-        reason = os_error_text(exc) if isinstance(exc, OSError) else "invalid path"
+        reason = os_error_text(exc) if isinstance(exc, OSError) else "invalid path (it contains a NUL byte)"
         raise InputError(f"{Path(path)}: cannot use {what}: {reason}") from None
 
 
@@ -100,6 +100,8 @@ def regular_file(path: str | os.PathLike[str], what: str = "file", kind: str = "
         raise InputError(f"{p}: {what} not found") from None
     except OSError as exc:
         raise InputError(f"{p}: cannot read {what}: {os_error_text(exc)}") from None
+    except ValueError:  # an embedded NUL byte
+        raise InputError(f"{str(p)!r}: cannot read {what}: the path contains a NUL byte") from None
     if not stat.S_ISREG(st.st_mode):
         raise InputError(f"{p}: is {_kind_name(st.st_mode)}, expected a {what} (a regular file)")
     limit = MAX_BYTES[kind]

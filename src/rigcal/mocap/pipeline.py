@@ -870,7 +870,8 @@ def run_mocap(config: MocapConfig, progress: Callable[[int, int], None] | None =
         log.warning("%s: target '%s' %s", config.source, name, why)
     weak = {n: weak_directions(e.std) for n, e in fit.result.sensors.items() if n in sensors}
     result = replace(fit.result, verdict=mocap_verdict(fit, weak, unseen),
-                     not_calibrated={n: given_up[n] for n in sensors if n in given_up})
+                     not_calibrated={n: given_up[n] for n in sensors if n in given_up},
+                     reference_frame=config.robot_frame)  # the body's frame in every output
     final = {n: e.T_reference_sensor for n, e in result.sensors.items()}
     if carried_diags:  # back in frame order
         diagnostics = sorted(diagnostics + carried_diags, key=lambda d: d.t_ns)

@@ -18,11 +18,11 @@ from rigcal.geometry.se3 import adjoint, invert, se3_exp, se3_log
 from rigcal.problem.configurations import (
     MODES,
     RADAR_PLANE_FREE,
-    RADAR_PLANE_HELD,
     board_block,
     build_pairwise,
     build_pse,
     initial_board_poses,
+    keep_poses,
     pairs_for_mode,
 )
 from rigcal.problem.evaluate import anchor_errors, evaluate_pairs
@@ -32,8 +32,10 @@ from rigcal.problem.initialise import default_reference, initial_poses
 from rigcal.problem.observability import check_observable
 from rigcal.problem.outliers import OutlierRule, find_outliers
 from rigcal.problem.pairs import all_pairs, pair_data
-from rigcal.problem.result import CalibrationResult, SensorEstimate
+from rigcal.problem.priors import HOLD_RADAR_PLANE, SensorPrior, merge_priors
+from rigcal.problem.result import BoundedSet, CalibrationResult, SensorEstimate
 from rigcal.problem.numerics import scale_rows, single_threaded
+from rigcal.stages import StageClock
 from rigcal.problem.noise import (
     DetectionUnits,
     detection_units,
@@ -45,6 +47,7 @@ from rigcal.problem.noise import (
     theta_by_sensor,
 )
 from rigcal.problem.solver import (
+    DOF_NAMES,
     PoseBlock,
     Problem,
     Solution,
@@ -58,9 +61,11 @@ from rigcal.problem.uncertainty import (
     BOUNDED_RADAR_DIRECTIONS,
     fov_bounds,
     fov_bounds_joint,
+    fov_polytope,
     geometry_warnings,
     pose_std,
     relative_estimates,
+    sensor_bounded_values,
     weak_directions,
 )
 
@@ -86,7 +91,10 @@ class CalibrationOptions:
     mode: ``mcpe``, ``fcpe`` or ``pse``. reference: sensor whose frame is the common frame
     (default: the dataset's, else the first lidar). detect_outliers: find and exclude bad
     detections by consensus. hold_radar_plane: hold every 2D radar's z, roll and pitch at the
-    initial guess. initial: optional ``T_reference_sensor`` guesses (else Kabsch).
+    initial guess (the prior ``{z_m: 0, roll_deg: 0, pitch_deg: 0}``). initial: optional
+    ``T_reference_sensor`` guesses (else Kabsch) - also the nominal mounting that priors are
+    around. prior: tolerances (:mod:`rigcal.problem.priors`) for every sensor without its own
+    (``SensorDetections.prior``, the manifest's); priors: per sensor, above both.
     cross_validation_folds: k-fold leave-boards-out RMSE (0 = skip).
     """
 
@@ -103,6 +111,10 @@ class CalibrationOptions:
     #: PSE noise: ``iterated`` (per-sensor, per-axis, re-estimated until converged) or
     #: ``identity`` (1 for every axis of every sensor: the original tool's fixed-noise PSE)
     pse_noise: str = "iterated"
+    #: mounting tolerances for every sensor without its own prior (``{"z_m": 0.01, ...}``)
+    prior: Mapping[str, float] | None = None
+    #: mounting tolerances per sensor (above the manifest's and ``prior``)
+    priors: Mapping[str, Mapping[str, float]] | None = None
 
 
 @dataclass(frozen=True, eq=False)  # holds arrays: compare by identity
@@ -113,6 +125,9 @@ class _Fit:
     noise: dict[str, tuple[float, ...]]
     noise_iterations: int
     board_poses: dict[int, np.ndarray]
+    #: per observation batch (label), the noise scale the priors were weighted against (the
+    #: batch's residual rows carry ``prior_scale`` times the whitened noise of a prior); 1: none
+    prior_scale: Mapping[str, float] = field(default_factory=dict)
 
 
 def _check(dataset: Dataset, options: CalibrationOptions) -> str:
@@ -126,13 +141,79 @@ def _check(dataset: Dataset, options: CalibrationOptions) -> str:
         )
     if mode == "pse" and dataset.sensor(reference).kind == SensorKind.RADAR:
         raise ConfigError("PSE needs a 3D reference sensor (lidar, camera or 3D radar), not a 2D radar")
+    if mode == "pse" and not any(s.kind.is_point_cloud for s in dataset.sensors):
+        raise ConfigError("PSE needs a lidar or camera (the board poses come from their circle centres); "
+                          f"this rig has only radars ({', '.join(dataset.names)}): use FCPE or MCPE")
     if options.pse_noise not in PSE_NOISE:
         raise ConfigError(
             f"unknown PSE noise '{options.pse_noise}' (expected one of: {', '.join(PSE_NOISE)})"
         )
     if options.cross_validation_folds < 0 or options.cross_validation_folds == 1:
         raise ConfigError("cross_validation_folds must be 0 (off) or at least 2")
+    priors = sensor_priors(dataset, reference, options)
+    if _radar_reference(dataset, mode, reference) and any(p.soft for p in priors.values()):
+        raise ConfigError(
+            f"MCPE with the 2D radar '{reference}' as reference holds the other sensors' height, roll "
+            "and pitch relative to it at the automatic guess: mounting priors are not used there; "
+            "calibrate with FCPE or PSE, or a 3D reference"
+        )
     return reference
+
+
+def nominal_poses(options: CalibrationOptions, reference: str) -> dict[str, np.ndarray]:
+    """``options.initial`` as ``T_reference_sensor`` in this run's reference frame (a file whose
+    poses are relative to another frame is re-expressed when it holds the reference's pose)."""
+    given = {k: np.asarray(v, dtype=float) for k, v in (options.initial or {}).items()}
+    if reference in given:
+        T_inv = invert(given[reference])
+        given = {k: T_inv @ v for k, v in given.items()}
+        given[reference] = np.eye(4)
+    return given
+
+
+def sensor_priors(dataset: Dataset, reference: str, options: CalibrationOptions) -> dict[str, SensorPrior]:
+    """Every sensor's mounting prior (:func:`rigcal.problem.priors.merge_priors`) around its
+    nominal pose from ``options.initial``; ``hold_radar_plane`` holds every 2D radar's z, roll
+    and pitch (at the nominal pose, else at the automatic initial guess). ConfigError for a
+    prior without a nominal pose."""
+    held = {
+        s.name: HOLD_RADAR_PLANE for s in dataset.sensors if s.kind == SensorKind.RADAR
+    } if options.hold_radar_plane else None
+    manifest = {s.name: s.prior for s in dataset.sensors if s.prior}
+    tolerances = merge_priors(dataset.names, reference, manifest, options.prior, options.priors, held)
+    nominal = nominal_poses(options, reference)
+    out = {}
+    for name, tol in tolerances.items():
+        T = nominal.get(name)
+        own = {k: v for k, v in tol.items() if not (held and name in held and k in held[name])}
+        if T is None and own:
+            raise ConfigError(
+                f"sensor '{name}': a mounting prior ({', '.join(f'{k} {v:g}' for k, v in own.items())}) "
+                f"needs its nominal pose: give --initial FILE holding {name}'s pose"
+            )
+        out[name] = SensorPrior(name, np.eye(4) if T is None else T, tol)
+    return out
+
+
+def _noise_scale(sol: Solution) -> float:
+    """The observations' noise scale in the problem's units (its a-posteriori std of unit
+    weight), against which priors are weighted."""
+    return max(math.sqrt(max(sol.sigma0_sq, 0.0)), 1e-9)
+
+
+def _solve_with_priors(build, solve_from, priors: Mapping[str, SensorPrior]):
+    """(problem, solution, prior scale) of a problem ``build(prior_scale)`` whose observations
+    are not whitened by their noise (FCPE, MCPE, PSE with identity noise): first solved without
+    the soft priors, whose residual scale then weighs them (one global scale ``s``: the
+    observations' rows and a prior's ``log(T0^-1 T) / (tolerance / s)`` are then in the same
+    units), then solved again with them from that solution."""
+    prob = build(None)
+    sol = solve_from(prob)
+    if not any(p.soft and p.sensor in prob.pose_names for p in priors.values()):
+        return prob, sol, 1.0
+    scale = _noise_scale(sol)
+    prob = build(scale)
+    return prob, solve_from(prob, start=sol.poses), scale
 
 
 def _fit(
@@ -148,27 +229,46 @@ def _fit(
     solve_from = solve_global if search else solve
     # refuse, saying what is missing, when the boards cannot determine the poses
     check_observable(dataset, mode, reference, options.hold_radar_plane)
+    priors = sensor_priors(dataset, reference, options)
+    hold = options.hold_radar_plane
     if mode == "fcpe":
-        prob = build_pairwise(dataset, poses0, reference, all_pairs(dataset), options.hold_radar_plane)
-        sol = solve_from(prob)
-        return _Fit(dict(sol.poses), prob, sol, {}, 0, {})
+        prob, sol, scale = _solve_with_priors(
+            lambda s: build_pairwise(dataset, poses0, reference, all_pairs(dataset), hold, priors, s),
+            solve_from, priors,
+        )
+        return _Fit(dict(sol.poses), prob, sol, {}, 0, {}, {b.label: scale for b in prob.observations})
     if mode == "mcpe":
         # each sensor against the reference: independent pairwise problems (paper eq. 6)
-        probs, sols = [], []
+        probs, sols, scales = [], [], {}
         for pair in pairs_for_mode(dataset, mode, reference):
             other = pair[1] if pair[0] == reference else pair[0]
-            prob = build_pairwise(dataset, poses0, reference, [pair], options.hold_radar_plane)
-            prob = replace(prob, poses=tuple(p for p in prob.poses if p.name in (reference, other)))
+            prob, sol, scale = _solve_with_priors(
+                lambda s: keep_poses(build_pairwise(dataset, poses0, reference, [pair], hold, priors, s),
+                                     (reference, other)),
+                solve_from, priors,
+            )
             probs.append(prob)
-            sols.append(solve_from(prob))
+            sols.append(sol)
+            scales.update({b.label: scale for b in prob.observations})
         prob, sol = merge_independent(probs, sols)
-        return _Fit(dict(sol.poses), prob, sol, {}, 0, {})
+        return _Fit(dict(sol.poses), prob, sol, {}, 0, {}, scales)
     # PSE with iterated diagonal noise: one Gauss-Newton step, then a variance-component update,
     # until the noise model stops changing; then a full solve, and a last check of the noise
     poses = {k: np.asarray(v) for k, v in poses0.items()}
     boards = initial_board_poses(dataset, poses)
     sigmas = {s.name: np.ones(2 if s.kind == SensorKind.RADAR else 3) for s in dataset.sensors}
-    prob = build_pse(dataset, poses, boards, reference, sigmas, options.hold_radar_plane)
+    if options.pse_noise == "identity":
+        # the noise stays 1 m: weigh the priors against the residuals' scale, as FCPE does
+        prob, sol, scale = _solve_with_priors(
+            lambda s: build_pse(dataset, poses, boards, reference, sigmas, hold, priors, s), solve_from, priors,
+        )
+        if not sol.converged:
+            raise ConvergenceError(f"PSE did not converge: {sol.status}")
+        boards = {k: sol.poses[board_block(k)] for k in boards}
+        return _Fit({s: sol.poses[s] for s in dataset.names}, prob.with_poses(sol.poses), sol, {}, 0, boards,
+                    {b.label: scale for b in prob.observations})
+    # the observations are whitened by the iterated noise: the priors by their own tolerances
+    prob = build_pse(dataset, poses, boards, reference, sigmas, hold, priors, 1.0)
     layout = prepare(prob)
 
     held: dict[str, np.ndarray] = {}  # per sensor: axes whose noise the data cannot estimate
@@ -229,9 +329,6 @@ def _fit(
     sol = solve_from(prob, layout=layout)
     if not sol.converged:
         raise ConvergenceError(f"PSE did not converge: {sol.status}")
-    if options.pse_noise == "identity":
-        boards = {k: sol.poses[board_block(k)] for k in boards}
-        return _Fit({s: sol.poses[s] for s in dataset.names}, prob.with_poses(sol.poses), sol, {}, 0, boards)
     history: list[dict[str, np.ndarray]] = []
     for it in range(1, options.max_noise_iterations + 1):
         # one Gauss-Newton step per noise update; if that has not settled after a while (little
@@ -346,18 +443,24 @@ def _robust_screen(
     outliers = find_outliers(dataset, poses0, options.outlier_rule)
     if not outliers:
         return outliers, dict(poses0)
-    prob = build_pairwise(dataset, poses0, reference, all_pairs(dataset), options.hold_radar_plane)
+    # (held directions only: a prior's weight needs the noise scale, which outliers would spoil)
+    prob = build_pairwise(dataset, poses0, reference, all_pairs(dataset), options.hold_radar_plane,
+                          sensor_priors(dataset, reference, options), None)
     sol = solve(prob, loss="cauchy", loss_scale=ROBUST_SCALE_M)
     poses = dict(sol.poses) if sol.converged else dict(poses0)
     return find_outliers(dataset, poses, options.outlier_rule), poses
 
 
-def _relative(dataset: Dataset, fit: _Fit, units: DetectionUnits, reference: str) -> dict:
-    """Every sensor pair's relative pose with its covariance. With a 2D radar reference (MCPE)
-    the height, roll and pitch between two other sensors come from the automatic guess (a fit
-    of their shared boards), not from the pairs solved: their own pair's covariance is added."""
-    sol = fit.solution
-    out = relative_estimates(dataset.names, fit.poses, sol.joint_covariance)
+def _relative(
+    dataset: Dataset, fit: _Fit, sol: Solution, units: DetectionUnits, reference: str,
+    bounded: Mapping[str, Mapping[str, tuple[float, float]]],
+) -> dict:
+    """Every sensor pair's relative pose with its covariance, propagated from the honest joint
+    covariance ``sol`` of the poses (correlations included), and the quantities a bounded
+    direction moves. With a 2D radar reference (MCPE) the height, roll and pitch between two
+    other sensors come from the automatic guess (a fit of their shared boards), not from the
+    pairs solved: their own pair's covariance is added."""
+    out = relative_estimates(dataset.names, fit.poses, sol.joint_covariance, sol.extra.get("bounded_sets", {}))
     if "radar_reference" not in sol.extra:
         return out
     for key, rel in out.items():
@@ -365,8 +468,7 @@ def _relative(dataset: Dataset, fit: _Fit, units: DetectionUnits, reference: str
         if reference in (a, b) or (a, b) not in all_pairs(dataset):
             continue
         local = {n: invert(fit.poses[a]) @ fit.poses[n] for n in dataset.names}
-        prob = build_pairwise(dataset, local, a, [(a, b)])
-        prob = replace(prob, poses=tuple(p for p in prob.poses if p.name in (a, b)))
+        prob = keep_poses(build_pairwise(dataset, local, a, [(a, b)]), (a, b))
         if not prob.observations:
             continue
         pair_fit = _Fit(local, prob, solve(prob, max_iterations=0), {}, 0, {})
@@ -405,8 +507,7 @@ def _fit_radar_reference(
             continue
         pair = tuple(sorted((s, radar), key=dataset.names.index))
         start = {n: invert(poses0[s]) @ poses0[n] for n in dataset.names}  # world: sensor s
-        prob = build_pairwise(dataset, start, s, [pair], hold_radar_plane=True)
-        prob = replace(prob, poses=tuple(p for p in prob.poses if p.name in (s, radar)))
+        prob = keep_poses(build_pairwise(dataset, start, s, [pair], hold_radar_plane=True), (s, radar))
         if not prob.observations:
             raise ConfigError(f"MCPE: sensor '{s}' shares no board with the reference '{radar}'")
         sol = solve(prob)
@@ -470,10 +571,12 @@ def _theta_all_pairs(dataset: Dataset, poses: Mapping[str, np.ndarray], referenc
     return estimate_theta(r, M, 1.0, batches=row_batches(problem))
 
 
-def _profile_moves(problem: Problem, radar: str, vertices: list[np.ndarray]) -> list[np.ndarray]:
-    """A 2D radar's pose moves (right perturbation, (6,)) when its roll, pitch and z are set to
-    each extreme of ``vertices`` and its in-plane pose (x, y, yaw) is solved again with
-    everything else held."""
+def _profile_moves(
+    problem: Problem, radar: str, vertices: list[np.ndarray], directions: tuple[str, ...] = tuple(BOUNDED_RADAR_DIRECTIONS)
+) -> list[np.ndarray]:
+    """A 2D radar's pose moves (right perturbation, (6,)) when its bounded ``directions`` (of
+    roll, pitch and z) are set to each extreme of ``vertices`` and its in-plane pose (x, y,
+    yaw) is solved again with everything else held."""
     T0 = problem.pose(radar).T
 
     # only the batches that involve the radar change when it moves
@@ -488,21 +591,30 @@ def _profile_moves(problem: Problem, radar: str, vertices: list[np.ndarray]) -> 
     moves = []
     for v in vertices:
         xi = np.zeros(6)
-        xi[list(BOUNDED_RADAR_DIRECTIONS.values())] = v
+        xi[[BOUNDED_RADAR_DIRECTIONS[d] for d in directions]] = v
         sol = solve(held, layout=layout, start={radar: T0 @ se3_exp(xi)}, max_iterations=50)
         moves.append(se3_log(invert(T0) @ sol.poses[radar]) if sol.converged else xi)
     return moves
 
 
-def _profile_spread(problem: Problem, radar: str, vertices: list[np.ndarray]) -> np.ndarray:
+def _spread(moves: list[np.ndarray]) -> np.ndarray:
     """(6, 6) second moment of a 2D radar's pose over the set its field of view allows (the
-    moves of :func:`_profile_moves`), scaled to those of a uniform distribution over the set
-    (a third of the extremes')."""
-    moves = _profile_moves(problem, radar, vertices)
+    moves of :func:`_profile_moves` to its extremes), scaled to those of a uniform distribution
+    over the set (a third of the extremes')."""
     if not moves:
         return np.zeros((6, 6))
     M = np.array(moves)
     return (M.T @ M) / len(moves) / 3.0
+
+
+def _bounded_map(vertices: list[np.ndarray], moves: list[np.ndarray], k: int) -> np.ndarray:
+    """(6, k): the pose's move per unit offset of each bounded direction, a least-squares fit
+    of the re-solved moves to the extremes (the in-plane pose follows a tilt: a heading the
+    azimuths measure stays put while the radar tilts)."""
+    if not vertices:
+        return np.eye(6)[:, :k]
+    B, M = np.array(vertices).reshape(-1, k), np.array(moves).reshape(-1, 6)
+    return np.linalg.lstsq(B, M, rcond=1e-9)[0].T
 
 
 def _cross_validation(
@@ -544,7 +656,7 @@ def _fit_screened(
     ``covariance=False``: the poses are all that is wanted (a radar-reference MCPE skips its
     covariance and profile solves; the poses are the same)."""
     poses0 = initial_poses(
-        dataset, reference, robust=options.detect_outliers, given=options.initial
+        dataset, reference, robust=options.detect_outliers, given=nominal_poses(options, reference)
     )
     outliers: dict[str, set[int]] = {}
     work = dataset
@@ -588,27 +700,42 @@ def calibrate(dataset: Dataset, options: CalibrationOptions = CalibrationOptions
     """Calibrate every sensor of ``dataset`` into the reference sensor's frame.
 
     Raises ConfigError for bad options, InputError when sensors cannot be related, and
-    ConvergenceError when the solver does not converge (never a silent result).
+    ConvergenceError when the solver does not converge (never a silent result). BLAS runs on
+    one thread throughout (covariance and checks included), so the result is the same to the
+    last bit in any process - a Dask worker of ``calibrate --batch`` or the command line.
     """
+    with single_threaded():
+        return _calibrate(dataset, options)
+
+
+def _calibrate(dataset: Dataset, options: CalibrationOptions) -> CalibrationResult:
     t0 = time.perf_counter()
     reference = _check(dataset, options)
     mode = options.mode.lower()
+    priors = sensor_priors(dataset, reference, options)
     ignored = {s.name: tuple(sorted(s.excluded)) for s in dataset.sensors if s.excluded}
+    clock = StageClock(log)
     with single_threaded():
         fit, work, outliers = _fit_screened(dataset, mode, reference, options)
+        clock.lap(f"{mode.upper()} fit with outlier screening"
+                  + (f" ({fit.noise_iterations} noise iterations)" if fit.noise_iterations else ""))
         rmse, per_board = evaluate_pairs(work, fit.poses)
         cv = (
             _cross_validation(work, mode, reference, fit.poses, options)
             if options.cross_validation_folds
             else {}
         )
+        if options.cross_validation_folds:
+            clock.lap(f"cross-validation ({options.cross_validation_folds} folds)")
     units = detection_units(work)
     if "radar_reference" in fit.solution.extra:
         sol, bounded, theta = fit.solution, {}, _theta_all_pairs(work, fit.poses, reference, units)
     else:
-        sol, bounded, theta = _honest_covariance(work, fit, units)
+        sol, bounded, theta = _honest_covariance(work, fit, units, priors)
     covariances = {s.name: sol.pose_covariance(s.name) for s in dataset.sensors}
+    sets = sol.extra.get("bounded_sets", {})
     stds = {name: pose_std(fit.poses[name], cov) for name, cov in covariances.items()}
+    clock.lap("covariance")
     weak = {
         name: [w for w in weak_directions(std) if w.split(" ")[0] not in bounded.get(name, {})]
         for name, std in stds.items() if name != reference
@@ -619,11 +746,16 @@ def calibrate(dataset: Dataset, options: CalibrationOptions = CalibrationOptions
     )
     noise_model = theta_by_sensor(units, theta)
     result_verdict = verdict(
-        pair_check, board_check, sol.rank_deficient, bounded, weak, noise_check(work, noise_model)
+        pair_check, board_check, sol.rank_deficient,
+        {name: sensor_bounded_values(fit.poses[name], stds[name], iv, sol.extra.get("bounded_sets", {}).get(name))
+         for name, iv in bounded.items()},
+        weak, noise_check(work, noise_model),
     )
+    clock.lap(f"consistency checks ({result_verdict.status})")
     if "radar_reference" in sol.extra:
         intervals = sol.extra["radar_reference"]
-        iv = ", ".join(f"{d} {lo:+.3g}..{hi:+.3g} {'m' if d == 'z' else 'deg'}" for d, (lo, hi) in intervals.items())
+        iv = ", ".join(f"{d} offsets {lo:+.3g} .. {hi:+.3g} {'m' if d == 'z' else 'deg'}"
+                       for d, (lo, hi) in intervals.items())
         text = (
             f"MCPE with the 2D radar '{reference}' as reference: it measures no elevation, so the "
             f"other sensors' height, roll and pitch relative to it are held at the automatic guess "
@@ -637,11 +769,12 @@ def calibrate(dataset: Dataset, options: CalibrationOptions = CalibrationOptions
     sensors = {}
     for s in dataset.sensors:
         cov = covariances[s.name]
-        held = ()
+        held: tuple[str, ...] = ()
+        prior = priors.get(s.name)
         if s.name == reference:
             held = ("x", "y", "z", "roll", "pitch", "yaw")
-        elif options.hold_radar_plane and s.kind == SensorKind.RADAR:
-            held = RADAR_PLANE_HELD
+        elif prior is not None:
+            held = tuple(d for d in ("x", "y", "z", "roll", "pitch", "yaw") if prior.held[DOF_NAMES.index(d)])
         sensors[s.name] = SensorEstimate(
             name=s.name,
             kind=s.kind,
@@ -651,6 +784,8 @@ def calibrate(dataset: Dataset, options: CalibrationOptions = CalibrationOptions
             std=stds[s.name],
             held=held,
             bounded=bounded.get(s.name, {}),
+            bounded_set=sets.get(s.name),
+            prior=dict(prior.tolerance) if prior is not None and s.name != reference else {},
         )
     return CalibrationResult(
         mode=mode,
@@ -670,20 +805,27 @@ def calibrate(dataset: Dataset, options: CalibrationOptions = CalibrationOptions
         board_poses=fit.board_poses,
         cross_validation_rmse_m=cv,
         solve_time_s=time.perf_counter() - t0,
-        relative=_relative(work, fit, units, reference),
+        relative=_relative(work, fit, sol, units, reference, bounded),
         noise_model=noise_model,
         verdict=result_verdict,
+        joint_covariance=None if "radar_reference" in sol.extra else sol.joint_covariance(list(sensors)),
     )
 
 
 def _honest_covariance(
-    dataset: Dataset, fit: _Fit, units: DetectionUnits
+    dataset: Dataset, fit: _Fit, units: DetectionUnits, priors: Mapping[str, SensorPrior] | None = None
 ) -> tuple[Solution, dict[str, dict[str, tuple[float, float]]], np.ndarray]:
     """The solution with a covariance that holds (see :mod:`rigcal.problem.noise`): per-sensor
     noise estimated from the residuals, the sandwich around the solve's weights (pairs that
     share a sensor's detections are correlated), and every 2D radar's z, roll and pitch
-    reported as the interval its field of view allows instead of a Gaussian - the other
-    parameters' covariance widened by what those directions may still move them.
+    without a prior reported as the interval its field of view allows instead of a Gaussian -
+    the other parameters' covariance widened by what those directions may still move them.
+
+    A mounting prior is one more measurement of its directions (the nominal pose, off the
+    truth by its tolerance): its precision enters the sandwich's bread as the solve weighted
+    it and its meat with its own noise (``A = J'J/s^2 + P``, ``meat = J'D Theta D'J/s^2 + P``
+    for observation rows that carry ``s`` times a prior's whitened noise, ``P`` the priors'
+    ``1 / tolerance^2``).
 
     Returns (solution, bounded intervals per sensor, the noise model's group variances)."""
     sol = fit.solution
@@ -695,31 +837,50 @@ def _honest_covariance(
     # the fitted parameters absorb n of the m residual degrees of freedom (a row-by-row
     # account, (I - H) D, was tried: near-collinear groups then collapse to the floor)
     theta = estimate_theta(r_w, group_design(Dw, units), m / max(m - n, 1), batches=row_batches(problem))
+    # the priors' precision per free column [1 / rad^2, 1 / m^2]
+    precision = np.zeros(n)
+    for name, pr in (priors or {}).items():
+        if name not in layout.index:
+            continue
+        cols, sig = layout.cols[layout.index[name]], pr.sigma
+        for i in range(6):
+            if cols[i] >= 0 and np.isfinite(sig[i]) and sig[i] > 0:
+                precision[cols[i]] += 1.0 / sig[i] ** 2
     bounded: dict[str, dict[str, tuple[float, float]]] = {}
     b_cols: list[int] = []
     spread: dict[str, np.ndarray] = {}
+    sets: dict[str, BoundedSet] = {}
     for s in dataset.sensors:
         if s.kind != SensorKind.RADAR or s.name not in layout.index:
             continue
         cols = layout.cols[layout.index[s.name]]
-        dirs = {d: int(cols[i]) for d, i in BOUNDED_RADAR_DIRECTIONS.items() if cols[i] >= 0}
+        # a direction with a prior is determined (by the prior and the data), not bounded
+        dirs = {d: int(cols[i]) for d, i in BOUNDED_RADAR_DIRECTIONS.items() if cols[i] >= 0 and precision[cols[i]] == 0}
         if not dirs:
             continue
-        intervals, vertices = fov_bounds(problem, s.name)
+        intervals, vertices = fov_bounds(problem, s.name, tuple(dirs))
         bounded[s.name] = {d: intervals[d] for d in dirs}
         b_cols += list(dirs.values())
-        spread[s.name] = _profile_spread(problem, s.name, vertices)
+        moves = _profile_moves(problem, s.name, vertices, tuple(dirs))
+        spread[s.name] = _spread(moves)
+        sets[s.name] = BoundedSet(tuple(dirs), *fov_polytope([problem], s.name, tuple(dirs)),
+                                  _bounded_map(vertices, moves, len(dirs)))
     # Gaussian part with the bounded directions held at the estimate, plus the spread of the
     # radar's pose over the bounded set (nonlinear: each extreme re-solved)
     free = np.setdiff1d(np.arange(n), b_cols)
-    _, C_ff = sandwich(J_w[:, free], Dw, units, theta)
+    J_f, D_f, P_f = J_w[:, free], Dw, None
+    if np.any(precision[free] > 0):
+        s_rows = np.concatenate([np.full(b.size * b.dim, float(fit.prior_scale.get(b.label, 1.0)))
+                                 for b in problem.observations])
+        J_f, D_f, P_f = J_f / s_rows[:, None], scale_rows(Dw, 1.0 / s_rows), precision[free]
+    _, C_ff = sandwich(J_f, D_f, units, theta, prior_precision=P_f)
     cov = np.zeros((n, n))
     cov[np.ix_(free, free)] = C_ff
     for name, S in spread.items():
         cols = layout.cols[layout.index[name]]
         keep = cols >= 0
         cov[np.ix_(cols[keep], cols[keep])] += S[np.ix_(keep, keep)]
-    return replace(sol, covariance=cov), bounded, theta
+    return replace(sol, covariance=cov, extra={**sol.extra, "bounded_sets": sets}), bounded, theta
 
 
 def _warnings(
@@ -745,9 +906,10 @@ def _warnings(
         if s.name in bounded:
             deg = math.degrees(s.max_elevation_rad)
             out.append(
-                f"{s.name} (2D radar): z, roll and pitch are not measured, only bounded by the "
-                f"±{deg:g} deg elevation field of view (see 'bounded'); to pin them, give the "
-                "known mounting with --initial FILE and --hold-radar-plane"
+                f"{s.name} (2D radar): {', '.join(bounded[s.name])} are not measured, only bounded by "
+                f"the ±{deg:g} deg elevation field of view (see 'bounded'); to pin them, give the "
+                f"known mounting with --initial FILE and its tolerance (--prior "
+                f"{s.name}:z_m=0.02,roll_deg=1,pitch_deg=1), or --hold-radar-plane"
             )
         elif (
             s.kind == SensorKind.RADAR and options.hold_radar_plane and s.name != reference

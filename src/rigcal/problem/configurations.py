@@ -9,11 +9,15 @@
 
 A 2D radar's field of view bounds the elevation of the reflector (paper eq. 4) in every mode.
 ``hold_radar_plane`` holds a 2D radar's z, roll and pitch (in its own frame) at their initial
-values: a 2D radar observes them only through second-order range effects.
+values: a 2D radar observes them only through second-order range effects. ``priors``
+(:class:`rigcal.problem.priors.SensorPrior` per sensor) add a soft prior residual block per
+sensor around its nominal pose, whitened by its tolerances divided by ``prior_scale`` (the
+observations' noise scale in the problem's units); a tolerance of 0 holds the direction.
 """
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Mapping
 
 import numpy as np
@@ -23,7 +27,8 @@ from rigcal.errors import ConfigError
 from rigcal.geometry.align import kabsch_batch
 from rigcal.problem.pairs import PairData, all_pairs, pair_data, reflector_points
 from rigcal.problem.residuals import MODEL_POINT, MODEL_RADAR2D
-from rigcal.problem.solver import ALL_FREE, ElevationLimits, Observations, PoseBlock, Problem
+from rigcal.problem.priors import SensorPrior
+from rigcal.problem.solver import ALL_FREE, ElevationLimits, Observations, PoseBlock, PosePriors, Problem
 from rigcal.targets.circle_board import board_centres, reflector_in_board
 
 MODES = ("mcpe", "fcpe", "pse")
@@ -35,12 +40,46 @@ def board_block(k: int) -> str:
     return f"board:{k}"
 
 
-def sensor_free(dataset: Dataset, name: str, reference: str, hold_radar_plane: bool):
+def sensor_free(
+    dataset: Dataset, name: str, reference: str, hold_radar_plane: bool, prior: SensorPrior | None = None
+):
     if name == reference:
         return (False,) * 6
+    free = ALL_FREE
     if hold_radar_plane and dataset.sensor(name).kind == SensorKind.RADAR:
-        return RADAR_PLANE_FREE
-    return ALL_FREE
+        free = RADAR_PLANE_FREE
+    if prior is not None:
+        free = tuple(f and not h for f, h in zip(free, prior.held))
+    return free
+
+
+def prior_batches(
+    priors: Mapping[str, SensorPrior] | None, names, prior_scale: float | None = 1.0
+) -> tuple[PosePriors, ...]:
+    """One :class:`PosePriors` per sensor of ``names`` with a finite, positive tolerance: sigma
+    = tolerance / ``prior_scale`` (inf where there is none or where it is 0: held by the pose
+    block instead). ``prior_scale`` None: no soft priors (held directions only)."""
+    if not priors or prior_scale is None:
+        return ()
+    out = []
+    for name in names:
+        pr = priors.get(name)
+        if pr is None or not pr.soft:
+            continue
+        s = pr.sigma
+        sigma = np.where(np.isfinite(s) & (s > 0), s / float(prior_scale), np.inf)
+        out.append(PosePriors(f"prior:{name}", (name,), pr.T_nominal[None], sigma))
+    return tuple(out)
+
+
+def keep_poses(problem: Problem, names) -> Problem:
+    """``problem`` with only the pose blocks ``names`` (and the priors bound to them)."""
+    keep = set(names)
+    return replace(
+        problem,
+        poses=tuple(p for p in problem.poses if p.name in keep),
+        priors=tuple(pr for pr in problem.priors if set(pr.blocks) <= keep),
+    )
 
 
 def pairs_for_mode(dataset: Dataset, mode: str, reference: str) -> list[tuple[str, str]]:
@@ -95,10 +134,14 @@ def build_pairwise(
     reference: str,
     pairs: list[tuple[str, str]],
     hold_radar_plane: bool = False,
+    priors: Mapping[str, SensorPrior] | None = None,
+    prior_scale: float | None = 1.0,
 ) -> Problem:
-    """MCPE or FCPE: sensor poses in the reference frame, residuals over ``pairs``."""
+    """MCPE or FCPE: sensor poses in the reference frame, residuals over ``pairs``; ``priors``
+    as the module says (``prior_scale`` None: their held directions only)."""
+    priors = priors or {}
     blocks = tuple(
-        PoseBlock(s, poses[s], sensor_free(dataset, s, reference, hold_radar_plane))
+        PoseBlock(s, poses[s], sensor_free(dataset, s, reference, hold_radar_plane, priors.get(s)))
         for s in dataset.names
     )
     obs, lims = [], []
@@ -110,7 +153,7 @@ def build_pairwise(
         obs.append(o)
         if lim is not None:
             lims.append(lim)
-    return Problem(blocks, tuple(obs), tuple(lims))
+    return Problem(blocks, tuple(obs), tuple(lims), prior_batches(priors, dataset.names, prior_scale))
 
 
 def pse_boards(dataset: Dataset) -> list[int]:
@@ -148,11 +191,15 @@ def build_pse(
     reference: str,
     sigmas: Mapping[str, np.ndarray],
     hold_radar_plane: bool = False,
+    priors: Mapping[str, SensorPrior] | None = None,
+    prior_scale: float | None = 1.0,
 ) -> Problem:
     """PSE: sensors and boards in the reference frame; Mahalanobis residuals with per-sensor,
-    per-axis noise ``sigmas[sensor]`` ((3,) for 3D sensors, (2,) for 2D radars)."""
+    per-axis noise ``sigmas[sensor]`` ((3,) for 3D sensors, (2,) for 2D radars); ``priors`` as
+    the module says."""
+    priors = priors or {}
     blocks = [
-        PoseBlock(s, poses[s], sensor_free(dataset, s, reference, hold_radar_plane))
+        PoseBlock(s, poses[s], sensor_free(dataset, s, reference, hold_radar_plane, priors.get(s)))
         for s in dataset.names
     ]
     boards = pse_boards(dataset)
@@ -203,7 +250,7 @@ def build_pse(
                     board=board,
                 )
             )
-    return Problem(tuple(blocks), tuple(obs), tuple(lims))
+    return Problem(tuple(blocks), tuple(obs), tuple(lims), prior_batches(priors, dataset.names, prior_scale))
 
 
 def measurement_dim(dataset: Dataset, name: str) -> int:
@@ -217,8 +264,10 @@ __all__ = [
     "build_pairwise",
     "build_pse",
     "initial_board_poses",
+    "keep_poses",
     "measurement_dim",
     "pairs_for_mode",
+    "prior_batches",
     "pse_boards",
     "reflector_points",
 ]

@@ -203,18 +203,26 @@ def verdict(
     pair_check: Check,
     board_check: Check,
     rank_deficient: bool,
-    bounded: Mapping[str, Mapping[str, tuple[float, float]]],
+    bounded: Mapping[str, Mapping[str, tuple[float, float, float]]],
     weak: Mapping[str, list[str]],
     noise: Check | None = None,
 ) -> Verdict:
+    """The checks' verdict; ``bounded``: per sensor, its bounded directions as absolute
+    ``(low, high, estimate)`` (:func:`rigcal.problem.uncertainty.absolute_bounds`)."""
     checks = [pair_check, board_check] + ([noise] if noise is not None else [])
+    only = ", ".join(s for s, iv in bounded.items() if iv)
     checks.append(
         Check("rank", FAIL, "the problem is rank deficient: some directions are not determined "
-              "by the boards") if rank_deficient else Check("rank", PASS, "every direction determined")
+              "by the boards") if rank_deficient
+        else Check("rank", PASS, f"every direction determined except those of {only} that the field of "
+                   "view only bounds (see bounded)")
+        if only else Check("rank", PASS, "every direction determined")
     )
     if bounded:
+        from rigcal.problem.uncertainty import format_bounded
+
         checks.append(Check("bounded", NOTE, "; ".join(
-            f"{s}: " + ", ".join(f"{d} {lo:+.3g}..{hi:+.3g} {'m' if d == 'z' else 'deg'}" for d, (lo, hi) in iv.items())
+            f"{s}: " + ", ".join(format_bounded(d, *v) for d, v in iv.items())
             for s, iv in bounded.items()) + " (set by the elevation field of view, not by measurements)"))
     weak_items = {s: w for s, w in weak.items() if w}
     if weak_items:

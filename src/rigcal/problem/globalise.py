@@ -103,7 +103,8 @@ def alternative_starts(
 
 def solve_global(problem: Problem, start: Mapping[str, np.ndarray] | None = None, **kwargs) -> Solution:
     """:func:`solve` from the problem's poses (or ``start``) and from the alternative radar
-    tilts of :func:`alternative_starts`; the lowest-cost converged solution (else the first).
+    tilts of :func:`alternative_starts`; the converged solution of the lowest objective
+    (observations and priors; else the first).
 
     ``solution.extra["starts"]`` lists (cost, converged) per start, the chosen one first.
     """
@@ -113,6 +114,8 @@ def solve_global(problem: Problem, start: Mapping[str, np.ndarray] | None = None
         return first
     tried = [first] + [solve(problem, start=alt, **kwargs) for alt in alternatives]
     converged = [s for s in tried if s.converged]
-    best = min(converged, key=lambda s: s.cost) if converged else first
-    record = [(best.cost, best.converged)] + [(s.cost, s.converged) for s in tried if s is not best]
+    best = min(converged, key=lambda s: s.cost + s.prior_cost) if converged else first
+    record = [(best.cost + best.prior_cost, best.converged)] + [
+        (s.cost + s.prior_cost, s.converged) for s in tried if s is not best
+    ]
     return replace(best, extra={**best.extra, "starts": tuple(record)})

@@ -215,6 +215,110 @@ class _PassiveSolver:
         return np.linalg.lstsq(self.A[:, P], self.b, rcond=None)[0]
 
 
+# --- the vertices of a small polytope ----------------------------------------------------------
+
+
+def _clip_polygon(poly: np.ndarray, a: np.ndarray, b: float, tol: float) -> tuple[list, list]:
+    """Sutherland-Hodgman: the part of the polygon ``poly`` (n, d) (vertices in order) with
+    ``a.x <= b``, and its points on the plane ``a.x = b``."""
+    dist = poly @ a - b
+    out: list = []
+    on: list = []
+    n = len(poly)
+    for i in range(n):
+        j = (i + 1) % n
+        p, q, dp, dq = poly[i], poly[j], dist[i], dist[j]
+        if dp <= tol:
+            out.append(p)
+            if dp >= -tol:
+                on.append(p)
+        if (dp < -tol and dq > tol) or (dp > tol and dq < -tol):
+            x = p + (q - p) * (dp / (dp - dq))
+            out.append(x)
+            on.append(x)
+    return out, on
+
+
+def _unique_rows(points, scale: float) -> np.ndarray:
+    pts = np.asarray(points, dtype=float)
+    if not len(pts):
+        return pts
+    key = np.round(pts / (1e-9 * scale))
+    _, idx = np.unique(key, axis=0, return_index=True)
+    return pts[np.sort(idx)]
+
+
+def _deepest_cut(V: np.ndarray, A: np.ndarray, b: np.ndarray, tol: float):
+    """(a, b_i, A, b): the row that cuts the most off the set with vertices ``V`` and the rows
+    left to try (a row that does not cut the set now never will: it only shrinks); a None when
+    none cuts."""
+    if not len(b) or not len(V):
+        return None, None, A[:0], b[:0]
+    over = (V @ A.T - b).max(axis=0) / np.linalg.norm(A, axis=1)
+    keep = over > tol
+    A, b, over = A[keep], b[keep], over[keep]
+    if not len(b):
+        return None, None, A, b
+    i = int(np.argmax(over))
+    return A[i], float(b[i]), np.delete(A, i, axis=0), np.delete(b, i)
+
+
+def polytope_vertices(A: np.ndarray, b: np.ndarray, limit: np.ndarray) -> np.ndarray:
+    """(n, k) the vertices of ``{d : A d <= b, |d_i| <= limit_i}`` for k <= 3 and ``b >= 0`` (the
+    origin inside): the box clipped by one half-space after the other, the deepest cut first
+    (intervals in 1D, polygons in 2D, convex polyhedra as lists of faces in 3D). Then
+    ``max c.d`` over the set is ``max(V @ c)`` - what :func:`maximise_in_polytope` finds, for
+    any number of ``c`` at once."""
+    A = np.atleast_2d(np.asarray(A, dtype=float))
+    b = np.asarray(b, dtype=float).ravel()
+    limit = np.asarray(limit, dtype=float).ravel()
+    k = limit.size
+    if k == 0 or k > 3 or (A.size and A.shape[1] != k):
+        raise ValueError(f"polytope_vertices: k = {k} (1 to 3), A {A.shape}")
+    scale = max(1.0, float(np.max(limit)))
+    tol = 1e-12 * scale
+    A = A.reshape(-1, k)
+    nonzero = np.any(A != 0.0, axis=1)
+    A, b = A[nonzero], b[nonzero]
+    if k == 1:
+        col = A[:, 0]
+        hi = min([limit[0]] + list(b[col > 0] / col[col > 0]))
+        lo = max([-limit[0]] + list(b[col < 0] / col[col < 0]))
+        return np.array([[lo], [hi]])
+    if k == 2:
+        poly = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]], dtype=float) * limit
+        while len(poly):
+            a, bi, A, b = _deepest_cut(poly, A, b, tol)
+            if a is None:
+                break
+            poly = np.array(_clip_polygon(poly, a, bi, tol)[0]).reshape(-1, 2)
+        return _unique_rows(poly, scale)
+    corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], dtype=float) * limit
+    # the box's faces, each with its corners in order around it
+    faces = [corners[[0, 1, 3, 2]], corners[[4, 5, 7, 6]], corners[[0, 1, 5, 4]],
+             corners[[2, 3, 7, 6]], corners[[0, 2, 6, 4]], corners[[1, 3, 7, 5]]]
+    while faces:
+        a, bi, A, b = _deepest_cut(np.concatenate(faces), A, b, tol)
+        if a is None:
+            break
+        new, cap = [], []
+        for f in faces:
+            kept, on = _clip_polygon(f, a, bi, tol)
+            cap += on
+            if len(kept) >= 3:
+                new.append(np.array(kept))
+        cap = _unique_rows(cap, scale)
+        if len(cap) >= 3:
+            # the cut face: its points in order around their centre, in the cutting plane
+            u = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 * np.linalg.norm(a) else [0.0, 1.0, 0.0])
+            u /= np.linalg.norm(u)
+            v = np.cross(a / np.linalg.norm(a), u)
+            rel = cap - cap.mean(axis=0)
+            new.append(cap[np.argsort(np.arctan2(rel @ v, rel @ u))])
+        faces = new
+    return _unique_rows(np.concatenate(faces) if faces else np.zeros((0, 3)), scale)
+
+
 # --- a small linear program -----------------------------------------------------------------
 
 
@@ -346,6 +450,7 @@ __all__ = [
     "maximise_in_polytope",
     "nnls",
     "null_space",
+    "polytope_vertices",
     "scale_rows",
     "single_threaded",
     "spd_solver",

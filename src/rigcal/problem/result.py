@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -11,6 +12,52 @@ from rigcal.dataset import SensorKind
 from rigcal.geometry.so3 import rpy_from_matrix
 
 STD_KEYS = ("x_m", "y_m", "z_m", "roll_deg", "pitch_deg", "yaw_deg")
+
+
+def bounded_dict(bounded: dict[str, tuple[float, float, float]]) -> dict[str, dict[str, float]]:
+    """Bounded quantities as written to calibration.yaml / JSON: ``{key: {low, high,
+    estimate}}`` - absolute values (m for x, y, z; deg for roll, pitch, yaw)."""
+    return {k: {"low": float(lo), "high": float(hi), "estimate": float(e)} for k, (lo, hi, e) in bounded.items()}
+
+
+@dataclass(frozen=True, eq=False)  # holds arrays: compare by identity
+class BoundedSet:
+    """The offsets of a sensor's bounded ``directions`` (of roll, pitch, z about / along its own
+    axes) that its constraints allow, to first order: ``A @ beta <= b`` and ``|beta| <= limit``
+    (``beta`` in ``directions`` order, rad / m; the estimate, ``beta = 0``, inside), and how the
+    whole pose follows them: ``move_map`` (6, k), the right perturbation per unit offset (its
+    in-plane pose re-solved at the set's extremes)."""
+
+    directions: tuple[str, ...]
+    A: np.ndarray
+    b: np.ndarray
+    limit: np.ndarray
+    move_map: np.ndarray
+
+    def __post_init__(self) -> None:
+        k = len(self.directions)
+        for name, shape in (("A", (-1, k)), ("b", (-1,)), ("limit", (k,)), ("move_map", (6, k))):
+            a = np.array(getattr(self, name), dtype=float).reshape(shape)
+            a.setflags(write=False)
+            object.__setattr__(self, name, a)
+        object.__setattr__(self, "directions", tuple(self.directions))
+
+    @cached_property
+    def vertices(self) -> np.ndarray:
+        """(n, k) the set's vertices (:func:`rigcal.problem.numerics.polytope_vertices`)."""
+        from rigcal.problem.numerics import polytope_vertices
+
+        if not self.directions:
+            return np.zeros((1, 0))
+        return polytope_vertices(self.A, np.maximum(self.b, 0.0), self.limit)
+
+    def extremes(self, g: np.ndarray) -> tuple[float, float]:
+        """(min, max) of ``g @ beta`` over the set (over its vertices); ``g`` (k,)."""
+        g = np.asarray(g, dtype=float).ravel()
+        if not np.any(g):
+            return 0.0, 0.0
+        vals = self.vertices @ g
+        return min(float(vals.min()), 0.0), max(float(vals.max()), 0.0)
 
 
 @dataclass(frozen=True, eq=False)  # holds arrays: compare by identity
@@ -31,10 +78,26 @@ class SensorEstimate:
     std: dict[str, float]
     held: tuple[str, ...] = ()
     #: directions set by an inequality constraint rather than by measurements (a 2D radar's
-    #: z, roll, pitch): local direction -> (low, high) offset from the estimate that the
-    #: constraints allow (m for x/y/z along the sensor's own axes, deg for roll/pitch/yaw about
-    #: them); their std is not meaningful
+    #: z, roll, pitch without a prior): local direction -> (low, high) offset from the estimate
+    #: that the constraints allow (m for x/y/z along the sensor's own axes, deg for
+    #: roll/pitch/yaw about them); their std is not meaningful. As absolute values of the pose
+    #: table: :attr:`bounded_absolute`
     bounded: dict[str, tuple[float, float]] = field(default_factory=dict)
+    #: the mounting prior's tolerances (:mod:`rigcal.problem.priors`; m / deg, 0: held)
+    prior: dict[str, float] = field(default_factory=dict)
+    #: the set of ``bounded`` offsets the constraints allow, and how the pose follows them
+    #: (None: the box of the ``bounded`` intervals, the directions alone)
+    bounded_set: BoundedSet | None = None
+
+    @property
+    def bounded_values(self) -> dict[str, tuple[float, float, float]]:
+        """What the bounded directions leave open, as absolute values of the pose table of
+        ``T_reference_sensor``: ``{key: (low, high, estimate)}`` for its z [m], roll, pitch
+        [deg] and any other quantity they move by more than its std
+        (:func:`rigcal.problem.uncertainty.sensor_bounded_values`)."""
+        from rigcal.problem.uncertainty import sensor_bounded_values
+
+        return sensor_bounded_values(self.T_reference_sensor, self.std, self.bounded, self.bounded_set)
 
     @property
     def xyz_m(self) -> np.ndarray:
@@ -57,6 +120,24 @@ class RelativeEstimate:
     T_to_from: np.ndarray
     covariance: np.ndarray
     std: dict[str, float]
+    #: pose-table quantities (x, y, z, roll, pitch, yaw) that a bounded direction of either
+    #: sensor moves by more than their std: ``{key: (low, high, estimate)}`` (m / deg)
+    bounded: dict[str, tuple[float, float, float]] = field(default_factory=dict)
+
+    @property
+    def rotation_std_deg(self) -> np.ndarray:
+        """(3,) std [deg] of the rotation vector of ``T_to_from``'s right perturbation: small
+        rotations about the ``frm`` sensor's own x, y, z axes (well defined at any attitude,
+        unlike Euler angles near gimbal lock)."""
+        return np.degrees(np.sqrt(np.maximum(np.diag(self.covariance)[:3], 0.0)))
+
+    @property
+    def gimbal_lock(self) -> bool:
+        """True when the Euler pitch is within 15 deg of +-90 deg: roll and yaw (and their std)
+        are then ill defined; read :attr:`rotation_std_deg`."""
+        from rigcal.problem.uncertainty import near_gimbal_lock
+
+        return near_gimbal_lock(self.T_to_from)
 
     @property
     def xyz_m(self) -> np.ndarray:
@@ -109,6 +190,14 @@ class CalibrationResult:
     #: sensor that never saw a target, or whose measurements leave its pose undetermined,
     #: while the others were calibrated)
     not_calibrated: dict[str, str] = field(default_factory=dict)
+    #: (6N, 6N) joint covariance of the N sensors' right perturbations (in ``sensors`` order; the
+    #: reference's rows zero), cross terms included: what ``rigcal check`` needs to combine the
+    #: errors of several stored relative poses exactly. None when the result has none (motion
+    #: capture; MCPE with a 2D radar reference, whose relative poses add their own pair fits).
+    joint_covariance: np.ndarray | None = None
+    #: the frame the poses are relative to when the reference is not a sensor (motion capture:
+    #: mocap.yaml's ``robot_frame``); empty: the reference sensor's ``frame_id``
+    reference_frame: str = ""
 
     @property
     def flagged(self) -> bool:
@@ -143,11 +232,17 @@ class CalibrationResult:
                     "std": {k: f(est.std[k]) for k in STD_KEYS},
                     "covariance": [[f(v) for v in row] for row in est.covariance],
                     "held": list(est.held),
-                    "bounded": {d: [f(lo), f(hi)] for d, (lo, hi) in est.bounded.items()},
+                    "bounded": bounded_dict(est.bounded_values),
+                    "bounded_offsets": {d: [f(lo), f(hi)] for d, (lo, hi) in est.bounded.items()},
+                    "prior": {k: f(v) for k, v in est.prior.items()},
                 }
                 for name, est in self.sensors.items()
             },
             "not_calibrated": {k: str(v) for k, v in self.not_calibrated.items()},
+            **({} if self.joint_covariance is None else {"joint_covariance": {
+                "sensors": list(self.sensors),
+                "matrix": [[f(v) for v in row] for row in np.asarray(self.joint_covariance)],
+            }}),
             "relative": {
                 key: {
                     "to": rel.to,
@@ -156,6 +251,9 @@ class CalibrationResult:
                     "xyz_m": [f(v) for v in rel.xyz_m],
                     "rpy_deg": [f(v) for v in rel.rpy_deg],
                     "std": {k: f(rel.std[k]) for k in STD_KEYS},
+                    "rotation_std_deg": [f(v) for v in rel.rotation_std_deg],
+                    "gimbal_lock": bool(rel.gimbal_lock),
+                    "bounded": bounded_dict(rel.bounded),
                     "covariance": [[f(v) for v in row] for row in rel.covariance],
                 }
                 for key, rel in self.relative.items()

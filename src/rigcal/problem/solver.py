@@ -232,6 +232,9 @@ class Solution:
     #: from the covariance without the field-of-view limits
     redundancy: tuple[np.ndarray, ...] = ()
     extra: dict = field(default_factory=dict)
+    #: 0.5 * the sum of the squared whitened prior residuals at the solution (``cost`` is the
+    #: observations' alone); the objective minimised is ``cost + prior_cost``
+    prior_cost: float = 0.0
 
     def pose_covariance(self, name: str) -> np.ndarray:
         """(6, 6) covariance of a pose's local perturbation; zero rows/cols for held DOFs."""
@@ -952,7 +955,8 @@ def solve(
     # the field-of-view limits: an inequality that happens to bind must not make the redundancy
     # (and with it the variance components estimated from it) jump as the weights change
     Jd = J.toarray() if issparse(J) else J
-    lev = _leverage(Jd, cov_free, layout.row_cols) if want_redundancy else np.zeros(J.shape[0])
+    # (observation rows only: prior rows, after them, have no detections to estimate noise from)
+    lev = _leverage(Jd[: layout.m_obs], cov_free, layout.row_cols) if want_redundancy else np.zeros(layout.m_obs)
     redundancy = []
     off = 0
     for x in raw:
@@ -961,6 +965,11 @@ def solve(
     obs_sq = float(sum(np.sum(x * x) for x in raw))
     sigma0_sq = obs_sq / dof if dof > 0 else 1.0
     columns = {name: layout.cols[i].copy() for i, name in enumerate(layout.names)}
+    prior_sq = 0.0
+    for pr, idx in zip(problem.priors, layout.prior_idx):
+        if pr.size:
+            rp = se3_log(np.linalg.inv(pr.T_prior) @ T[idx]) / pr.sigma
+            prior_sq += float(np.sum(rp * rp))
     return Solution(
         poses={name: T[i].copy() for i, name in enumerate(layout.names)},
         converged=converged,
@@ -977,6 +986,7 @@ def solve(
         rank_deficient=rank_deficient,
         redundancy=tuple(redundancy),
         extra={"lm_state": state},
+        prior_cost=0.5 * prior_sq,
     )
 
 
@@ -994,6 +1004,7 @@ def merge_independent(problems: list[Problem], solutions: list[Solution]) -> tup
         tuple(blocks.values()),
         tuple(b for p in problems for b in p.observations),
         tuple(b for p in problems for b in p.limits),
+        tuple(b for p in problems for b in p.priors),
     )
     cols: dict[str, np.ndarray] = {}
     covs = []
@@ -1048,6 +1059,7 @@ def combine_solutions(
         rank_deficient=any(s.rank_deficient for s in solutions),
         redundancy=tuple(r for s in solutions for r in s.redundancy),
         extra=dict(extra or {}),
+        prior_cost=sum(s.prior_cost for s in solutions),
     )
 
 

@@ -219,15 +219,92 @@ def _axis_name(v: Iterable[float]) -> str:
     return ("x", "y", "z")[i] if abs(v[i]) > 0.9 else "(" + ", ".join(f"{c:+.2f}" for c in v) + ")"
 
 
+def _hull(points: np.ndarray) -> np.ndarray:
+    """(h, 2) the convex hull of (n, 2) points, counter-clockwise (monotone chain); fewer than 3
+    vertices when the points are (nearly) collinear."""
+    pts = sorted(set(map(tuple, np.round(np.asarray(points, dtype=float), 12))))
+    if len(pts) < 3:
+        return np.array(pts, dtype=float).reshape(-1, 2)
+
+    def cross(o, a, b) -> float:
+        return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
+
+    lower: list = []
+    upper: list = []
+    for p in pts:
+        while len(lower) >= 2 and cross(lower[-2], lower[-1], p) <= 0:
+            lower.pop()
+        lower.append(p)
+    for p in reversed(pts):
+        while len(upper) >= 2 and cross(upper[-2], upper[-1], p) <= 0:
+            upper.pop()
+        upper.append(p)
+    return np.array(lower[:-1] + upper[:-1], dtype=float)
+
+
+def _inside_hull(hull: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """(n,) bool: each of (n, 2) ``points`` inside (or on) the counter-clockwise convex ``hull``
+    (with at least 3 vertices; else nothing is inside)."""
+    points = np.asarray(points, dtype=float).reshape(-1, 2)
+    if len(hull) < 3:
+        return np.zeros(len(points), dtype=bool)
+    a, b = hull, np.roll(hull, -1, axis=0)
+    edge = b - a
+    rel = points[:, None, :] - a[None, :, :]
+    side = edge[None, :, 0] * rel[:, :, 1] - edge[None, :, 1] * rel[:, :, 0]
+    scale = max(1.0, float(np.abs(hull).max()))
+    return np.all(side >= -1e-12 * scale, axis=1)
+
+
+def _view_region(kind: SensorKind, region_points: np.ndarray):
+    """``inside(points (n, 3) in the sensor frame) -> (n,) bool``: within the part of the view
+    where the sensor detected something. A camera: inside the convex hull of the detected
+    points on its normalised image plane (x / z, y / z; the image is convex there, so the hull
+    lies in it); a lidar or 3D radar: inside the azimuth and elevation ranges of the detections;
+    a 2D radar: inside their azimuth range."""
+    p = np.asarray(region_points, dtype=float).reshape(-1, 3)
+    p = p[np.all(np.isfinite(p), axis=1)]
+    if kind is SensorKind.CAMERA:
+        front = p[p[:, 2] > 1e-9]
+        hull = _hull(front[:, :2] / front[:, 2:3]) if len(front) else np.zeros((0, 2))
+
+        def inside(q: np.ndarray) -> np.ndarray:
+            q = np.asarray(q, dtype=float).reshape(-1, 3)
+            ok = q[:, 2] > 1e-9
+            out = np.zeros(len(q), dtype=bool)
+            out[ok] = _inside_hull(hull, q[ok, :2] / q[ok, 2:3])
+            return out
+
+        return inside
+    az, el, _ = _angles(p) if len(p) else (np.zeros(0),) * 3
+    tol = 1e-9
+
+    def inside_box(q: np.ndarray) -> np.ndarray:
+        a, e, _ = _angles(np.asarray(q, dtype=float).reshape(-1, 3))
+        if not len(az):
+            return np.zeros(len(a), dtype=bool)
+        ok = (a >= az.min() - tol) & (a <= az.max() + tol)
+        if kind is not SensorKind.RADAR:
+            ok &= (e >= el.min() - tol) & (e <= el.max() + tol)
+        return ok
+
+    return inside_box
+
+
 def sensor_coverage(det: SensorDetections | Any, result: CalibrationResult, board_points: np.ndarray,
-                    boards: list[int], item: str = "board") -> dict[str, Any]:
+                    boards: list[int], item: str = "board", region_points: np.ndarray | None = None,
+                    ) -> dict[str, Any]:
     """Where the boards were in one sensor's view, its least determined directions and a hint
     where the next board helps most.
 
     ``board_points`` (K, 3): each used board's centre in the sensor's frame. The hint scores
-    candidate board positions over the viewed directions widened by 15 deg (at the median
-    board range) by how much one more board there would shrink the pose covariance, to first
-    order: ``C' = (C^-1 + J^T J / sigma^2)^-1`` with ``J`` the four circle centres' (a radar's
+    candidate board positions at the median board range, in the part of the view where the
+    sensor detected boards (:func:`_view_region` of ``region_points``, every detected point in
+    the sensor's frame, default ``board_points``: all four circles of a candidate board must lie
+    there, so the hint is inside the sensor's field of view - a camera's image; without
+    ``region_points`` its centre among the board centres), by how much one
+    more board there would shrink the pose covariance, to first order:
+    ``C' = (C^-1 + J^T J / sigma^2)^-1`` with ``J`` the four circle centres' (a radar's
     reflector's) Jacobian w.r.t. the pose and ``sigma`` the sensor's estimated noise; the
     candidate with the smallest ``C'`` (rotation in units of 1 deg, translation of 5 cm) wins.
     """
@@ -263,10 +340,11 @@ def sensor_coverage(det: SensorDetections | Any, result: CalibrationResult, boar
         return out
     sigma = _sigma(result, det.name)
     r0 = float(np.median(rng))
-    lim_el = math.degrees(det.max_elevation_rad) if det.kind is SensorKind.RADAR else 35.0
-    az_c = np.arange(max(az.min() - 15, -80), min(az.max() + 15, 80) + 1e-9, 5.0)
+    in_view = _view_region(det.kind, board_points if region_points is None else region_points)
+    # candidates: a grid over the viewed directions, and the boards' own directions (seen)
+    az_c = np.unique(np.concatenate([np.linspace(az.min(), az.max(), 13), az]))
     el_c = (np.array([0.0]) if det.kind is SensorKind.RADAR else
-            np.arange(max(el.min() - 5, -lim_el), min(el.max() + 5, lim_el) + 1e-9, 2.5))
+            np.unique(np.concatenate([np.linspace(el.min(), el.max(), 9), el])))
     spacing = 0.24 * 0.5
     offsets = np.array([[0, s1 * spacing, s2 * spacing] for s1 in (-1, 1) for s2 in (-1, 1)])
     base = _score(C)
@@ -281,6 +359,9 @@ def sensor_coverage(det: SensorDetections | Any, result: CalibrationResult, boar
             else:
                 pts_view = centre_view + offsets
             pts = _from_view(det.kind, pts_view)
+            # every circle inside the viewed region (without the detected points: the centre)
+            if not np.all(in_view(pts if region_points is not None else _from_view(det.kind, centre_view[None]))):
+                continue
             J = np.vstack([_point_jacobian(p, np.eye(3)) for p in pts])
             if det.kind is SensorKind.RADAR:  # a 2D radar measures the plane's x, y only
                 J = np.vstack([_point_jacobian(p, np.eye(3))[:2] for p in pts])
@@ -290,6 +371,9 @@ def sensor_coverage(det: SensorDetections | Any, result: CalibrationResult, boar
             s = _score(Cn)
             if best is None or s < best[0]:
                 best = (s, a, e, _from_view(det.kind, centre_view[None])[0])
+    if best is None:
+        out["note"] = "no board position inside the viewed region to suggest"
+        return out
     s, a, e, p_sensor = best
     p_ref = transform_points(T, p_sensor[None])[0]
     gain = 1.0 - s / base if base > 0 else 0.0
@@ -324,7 +408,10 @@ def coverage_data(dataset: Dataset, result: CalibrationResult) -> dict[str, Any]
             centres = np.concatenate([pts[boards].reshape(-1, 2), np.zeros((len(boards), 1))], axis=1)
         else:
             centres = pts[boards].reshape(-1, 3)
-        out[det.name] = sensor_coverage(det, result, centres, boards)
+        seen = pts[boards].reshape(-1, pts.shape[-1]) if boards else np.zeros((0, pts.shape[-1]))
+        if det.kind is SensorKind.RADAR:
+            seen = np.concatenate([seen, np.zeros((len(seen), 1))], axis=1)
+        out[det.name] = sensor_coverage(det, result, centres, boards, region_points=seen)
     return out
 
 

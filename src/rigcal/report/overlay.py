@@ -329,15 +329,28 @@ def write_overlays(
 ) -> list[Path]:
     """Write the overlay PNG of at most ``max_per_sensor`` items per sensor (in the given
     order) into ``out_dir`` (created if needed), atomically; returns the paths.
-    ``initial`` / ``final``: ``T_robot_sensor`` per sensor name."""
+    ``initial`` / ``final``: ``T_robot_sensor`` per sensor name. Lidar overlays are drawn with
+    matplotlib: without it (the ``plots`` extra) they are left out, with a warning."""
+    import logging
+
+    from rigcal.extras import available, missing_extra_message
     from rigcal.io.atomic import atomic_write_bytes
 
     out = Path(out_dir)
     written: list[Path] = []
     per_sensor: dict[str, int] = {}
+    plots = None
     for item in items:
         if per_sensor.get(item.sensor, 0) >= max_per_sensor:
             continue
+        if item.kind != "camera":
+            if plots is None:
+                plots = available("matplotlib")
+                if not plots:
+                    logging.getLogger(__name__).warning(
+                        "lidar overlays left out: %s", missing_extra_message("matplotlib", "drawing them"))
+            if not plots:
+                continue
         for name, poses in (("initial", initial), ("final", final)):
             if item.sensor not in poses:
                 raise InputError(f"overlay: no {name} calibration for sensor '{item.sensor}'")

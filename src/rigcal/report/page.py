@@ -1,22 +1,22 @@
 """``report.html``: one self-contained page from the report data (:mod:`rigcal.report.data`).
 
 The page is a Jinja2 template (``templates/report.html.j2``, package data) with plotly.js
-embedded once, inline - the partial build shipped with rigcal (:data:`BUNDLE`), else the full
-``plotly.min.js`` of the installed ``plotly`` package - and the figures
+embedded once, inline - the partial build shipped inside rigcal's package (:data:`BUNDLE`,
+committed with its licenses, rebuilt identically from ``tools/plotly-bundle``) - and the figures
 (:mod:`rigcal.report.figures`) as JSON that a few lines hand to ``Plotly.newPlot``. It loads
 nothing from any address (a Content-Security-Policy forbids it). The verdict and the tables
 come before the script, and plotly.js is only started after the first frame, so they show at
 once while the figures are drawn.
 
-jinja2 is imported when a page is rendered; plotly is never imported (its JavaScript is read
-from files).
+jinja2 is imported when a page is rendered; rigcal does not depend on the plotly Python package
+(the figures are plain plotly.js JSON).
 """
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import math
+import re
 from functools import lru_cache
 from pathlib import Path
 from typing import Any, Mapping
@@ -42,24 +42,13 @@ def _version(text: str) -> str:
 
 @lru_cache(maxsize=1)
 def plotly_js() -> tuple[str, str]:
-    """(plotly.js text, its version): rigcal's partial build (:data:`BUNDLE`), else the full
-    plotly.min.js of the installed plotly package, read without importing plotly. InputError when
-    neither is there."""
+    """(plotly.js text, its version): rigcal's partial build (:data:`BUNDLE`, package data).
+    InputError when it cannot be read (a broken installation)."""
     try:
         text = BUNDLE.read_text(encoding="utf-8")
-    except OSError:
-        pass
-    else:
-        return text, _version(text)
-    spec = importlib.util.find_spec("plotly")
-    if spec is None or not spec.submodule_search_locations:
-        raise InputError("report.html needs the 'plotly' package (pip install plotly): it was not found")
-    root = Path(list(spec.submodule_search_locations)[0])
-    path = root / "package_data" / "plotly.min.js"
-    try:
-        text = path.read_text(encoding="utf-8")
     except OSError as exc:
-        raise InputError(f"{path}: cannot read plotly.js from the plotly package: {exc.strerror or exc}") from None
+        raise InputError(f"{BUNDLE}: cannot read rigcal's plotly.js ({exc.strerror or exc}); "
+                         "reinstall rigcal (the file is part of its package)") from None
     return text, _version(text)
 
 
@@ -89,6 +78,17 @@ def pose_rows(sensors: Mapping[str, Any], rpy_std_decimals: int = 2) -> list[dic
     return rows
 
 
+def _bounded_text(key: str, value: Any) -> str:
+    """One bounded quantity of a result file (``{low, high, estimate}``; an older file's
+    ``[low, high]`` offsets are printed as such)."""
+    from rigcal.problem.uncertainty import format_bounded
+
+    if isinstance(value, Mapping):
+        return format_bounded(key, float(value["low"]), float(value["high"]), float(value["estimate"]))
+    lo, hi = value
+    return f"{key} offsets {lo:+.3g} .. {hi:+.3g} {'m' if key in ('x', 'y', 'z') else 'deg'}"
+
+
 def _verdict(result: Mapping[str, Any]) -> dict[str, Any]:
     v = result.get("verdict") or {}
     status = v.get("status", "unchecked")
@@ -105,8 +105,7 @@ def _verdict(result: Mapping[str, Any]) -> dict[str, Any]:
 def _context(data: Mapping[str, Any]) -> dict[str, Any]:
     result = data["result"]
     sensors = result.get("sensors", {})
-    bounded = [f"{name}: " + ", ".join(f"{d} {lo:+.3g}..{hi:+.3g} {'m' if d == 'z' else 'deg'}"
-                                        for d, (lo, hi) in s["bounded"].items())
+    bounded = [f"{name}: " + ", ".join(_bounded_text(d, v) for d, v in s["bounded"].items())
                for name, s in sensors.items() if s.get("bounded")]
     weak = []
     for name, s in sensors.items():
@@ -139,10 +138,16 @@ def _context(data: Mapping[str, Any]) -> dict[str, Any]:
     relative = result.get("relative", {})
     if relative:
         rel = {f"{r['to']} <- {r['from']}": r for r in relative.values()}
+        locked = [f"{k} (pitch {_fmt(r['rpy_deg'][1], '+.1f')} deg): rotation std about {r['from']}'s x, y, z "
+                  + "/".join(_fmt(v, ".2f") for v in r.get("rotation_std_deg", [])) + " deg"
+                  for k, r in rel.items() if r.get("gimbal_lock")]
         blocks.append({
             "id": "relative", "frame": "", "title": "Relative transforms between sensors (T_to_from)",
             "caption": "Sensor 'from' in the frame of sensor 'to', with the std propagated from both "
-                       "poses' joint covariance.",
+                       "poses' joint covariance (the same as the poses', correlations included); bnd: a "
+                       "bounded direction moves the value more than its std."
+                       + (" Near gimbal lock (Euler roll and yaw ill-defined): " + "; ".join(locked) + "."
+                          if locked else ""),
             "rows": pose_rows(rel),
         })
     errors = []
@@ -218,9 +223,37 @@ def _context(data: Mapping[str, Any]) -> dict[str, Any]:
     }
 
 
+#: the tags plotly.js may draw from the figures' texts: the ones rigcal writes itself (line
+#: breaks, hover boxes' <extra>), none with attributes
+PLOTLY_TAGS = frozenset({"br", "br/", "br /", "extra", "/extra", "b", "/b", "i", "/i", "sub", "/sub", "sup", "/sup"})
+_TAG = re.compile(r"<([^<>]*)>")
+
+
+def _inert_tag(match: re.Match) -> str:
+    inner = match.group(1)
+    return match.group(0) if inner.strip().lower() in PLOTLY_TAGS else f"&lt;{inner}&gt;"
+
+
+def plotly_text(value: Any) -> Any:
+    """``value`` (a figure spec) with every string's markup that plotly.js would act on made
+    inert: plotly.js draws the tags in a text (``<span style=...>``, ``<a href=...>``) - a
+    hand-edited report.json's sensor name could make the page fetch ``url(...)`` or link
+    elsewhere; such a tag becomes text (``&lt;span ...&gt;``, which plotly shows as written).
+    Only :data:`PLOTLY_TAGS` stay tags. Pure: returns a new value."""
+    if isinstance(value, str):
+        return _TAG.sub(_inert_tag, value) if "<" in value else value
+    if isinstance(value, dict):
+        return {k: plotly_text(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [plotly_text(v) for v in value]
+    return value
+
+
 def figures_script_json(figures: list) -> str:
-    """Figure specs as JSON safe inside a ``<script>`` element (no ``<`` at all)."""
-    return json.dumps(figures, separators=(",", ":"), allow_nan=False).replace("<", "\\u003c")
+    """Figure specs as JSON safe inside a ``<script>`` element (no ``<`` at all), their texts'
+    markup inert (:func:`plotly_text`)."""
+    safe = [{**f, "data": plotly_text(f.get("data", [])), "layout": plotly_text(f.get("layout", {}))} for f in figures]
+    return json.dumps(safe, separators=(",", ":"), allow_nan=False).replace("<", "\\u003c")
 
 
 @lru_cache(maxsize=2)

@@ -9,6 +9,10 @@ motion-capture tables), and figures next to the paper's values where the rows ca
 * Fig. 7 / Fig. 8: the median RMSE against the number of boards K / the lidar noise sigma, one
   line per configuration and pair with the MAD as error bars, the paper's values as markers.
 
+The study's settings (``meta``) head the page: scalars and flat mappings (e.g. ``draws: III: 200,
+fig7: 100``), an absolute path as its file name only; ``meta["notes"]`` (a list of paragraphs,
+e.g. why the paper's MCPE rows differ) follow as a "Notes" section.
+
 Same page machinery as ``report.html`` (:mod:`rigcal.report.page`): Jinja2, plotly.js embedded,
 no network request.
 """
@@ -16,6 +20,7 @@ no network request.
 from __future__ import annotations
 
 import math
+from pathlib import PurePosixPath, PureWindowsPath
 from typing import Any, Mapping, Sequence
 
 from rigcal.errors import InputError
@@ -66,6 +71,32 @@ def _cell(key: str, v: Any) -> str:
     if isinstance(v, (list, dict)):
         return "..."
     return str(v)
+
+
+def _is_absolute_path(v: str) -> bool:
+    return "\n" not in v and (PurePosixPath(v).is_absolute() or PureWindowsPath(v).is_absolute())
+
+
+def _meta_value(key: str, v: Any) -> str | None:
+    """A ``meta`` value as the page shows it, or None (not shown: None, lists, nested mappings,
+    the notes). An absolute path is shown as its file name: the page is shared, and a path on the
+    machine that ran the study says nothing to its reader (study.json keeps what was given)."""
+    if v is None:  # not set (e.g. an option left at its default): nothing to show
+        return None
+    if isinstance(v, str):
+        return PureWindowsPath(v).name if _is_absolute_path(v) else v  # (it splits at / and \\)
+    if isinstance(v, dict):
+        if not v or any(isinstance(x, (list, dict)) for x in v.values()):
+            return None
+        return ", ".join(f"{k}: {_meta_value(str(k), x)}" for k, x in v.items())
+    if isinstance(v, list):
+        return None
+    return _cell(key, v)
+
+
+def _notes(meta: Mapping[str, Any]) -> list[str]:
+    notes = meta.get("notes")
+    return [str(n) for n in notes] if isinstance(notes, list) else []
 
 
 def _series_name(r: Mapping[str, Any]) -> str:
@@ -169,7 +200,9 @@ def render_study(study: Mapping[str, Any], source: str = "study.json", title: st
         return _template(TEMPLATE).render(
             title=title or str(meta.get("study") or meta.get("name") or "rigcal study"),
             version=__version__,
-            meta=[(str(k), _cell(str(k), v)) for k, v in meta.items() if not isinstance(v, (list, dict))],
+            meta=[(str(k), shown) for k, v in meta.items()
+                  if k != "notes" and (shown := _meta_value(str(k), v)) is not None],
+            notes=_notes(meta),
             tables=tables(rows),
             figures=[f["id"] for f in figures],
             figures_json=figures_script_json(figures),

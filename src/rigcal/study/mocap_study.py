@@ -554,7 +554,7 @@ def _calibrate(obs, kind, rig: MocapRig, target: Target, T_init, T_true, trial, 
     )
 
 
-def _check_args(target: str, sensor: str, measurements, trials: int, mcs_noise_m: float) -> tuple[int, ...]:
+def _check_args(target: str, sensor: str, measurements, trials: int, mcs_noise_m: float, seed: int = 0) -> tuple[int, ...]:
     if target not in TARGETS:
         raise InputError(f"study: target must be one of {TARGETS}, got {target!r}")
     if sensor not in SENSORS:
@@ -567,6 +567,8 @@ def _check_args(target: str, sensor: str, measurements, trials: int, mcs_noise_m
         raise InputError(f"study: measurements must be >= 1, got {measurements!r}")
     if isinstance(trials, bool) or not isinstance(trials, (int, np.integer)) or trials < 1:
         raise InputError(f"study: trials must be an integer >= 1, got {trials!r}")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise InputError(f"study: seed must be an integer >= 0, got {seed!r}")
     if not (math.isfinite(mcs_noise_m) and mcs_noise_m >= 0):
         raise InputError(f"study: mcs_noise_m must be >= 0, got {mcs_noise_m!r}")
     return ns
@@ -696,7 +698,7 @@ def run_mocap_study(
     in this process); every trial is seeded by ``(seed, trial)``, so the numbers do not depend
     on it. With ``same_data`` the trials share one pool of captures and run in this process.
     """
-    ns = _check_args(target, sensor, measurements, trials, mcs_noise_m)
+    ns = _check_args(target, sensor, measurements, trials, mcs_noise_m, seed)
     if lidar_measurement not in ("keypoints", "points"):
         raise InputError(f"study: lidar_measurement must be 'keypoints' or 'points', got {lidar_measurement!r}")
     if not (math.isfinite(lidar_range_sigma_m) and lidar_range_sigma_m >= 0):
@@ -799,7 +801,12 @@ def run(args: argparse.Namespace, progress=None) -> tuple[str, int]:
     from rigcal.study.scale import SERIAL, task_runner
 
     scheduler = getattr(args, "scheduler", SERIAL)
+    out = getattr(args, "out", None)
     try:
+        if out:  # refused before the study, not after it
+            from rigcal.io.atomic import check_output_folder
+
+            check_output_folder(out)
         with task_runner(scheduler, tasks=args.trials) as runner:
             table = run_mocap_study(
                 target=args.target, sensor=args.sensor, measurements=tuple(args.measurements),
@@ -828,7 +835,9 @@ def run(args: argparse.Namespace, progress=None) -> tuple[str, int]:
                 (stage / "study.html").write_text(render_study(
                     json.loads(json.dumps(document)), "study.json", "Motion-capture calibration study"))
     except RigcalError as exc:
-        return f"rigcal: error: {exc}", 1
+        from rigcal.errors import printable
+
+        return f"rigcal: error: {printable(exc)}", 1
     if getattr(args, "json", False):
         import json
 

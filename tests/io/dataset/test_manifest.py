@@ -159,7 +159,11 @@ S_R = "  - {name: radar1, kind: radar, detections: radar1.csv}\n"
         ("sensors:\n" + S_L + "  - {kind: radar, detections: radar1.csv}\n", r"m\.yaml: sensors\[1\]: missing required key 'name'"),
         ("sensors:\n" + S_L + "  - {name: r, detections: radar1.csv}\n", r"sensors\[1\]: missing required key 'kind'"),
         ("sensors:\n" + S_L + "  - {name: r, kind: radar}\n", r"sensors\[1\]: missing required key 'detections'"),
-        ("sensors:\n" + S_L + "  - {name: r, kind: radar, detections: radar1.csv, fov: 3}\n", r"sensors\[1\]: unknown key\(s\) 'fov' \(allowed: name, kind, detections, frame_id, elevation_fov_deg, topic\)"),
+        ("sensors:\n" + S_L + "  - {name: r, kind: radar, detections: radar1.csv, fov: 3}\n", r"sensors\[1\]: unknown key\(s\) 'fov' \(allowed: name, kind, detections, frame_id, elevation_fov_deg, topic, prior\)"),
+        ("sensors:\n" + S_L + "  - {name: r, kind: radar, detections: radar1.csv, prior: {height_m: 1}}\n", r"sensors\[1\]\.prior: unknown direction 'height_m' \(expected one of: roll_deg, pitch_deg, yaw_deg, x_m, y_m, z_m\)"),
+        ("sensors:\n" + S_L + "  - {name: r, kind: radar, detections: radar1.csv, prior: {z_m: -1}}\n", r"sensors\[1\]\.prior\.z_m: expected a tolerance in m >= 0 \(0 holds it\), got -1"),
+        ("sensors:\n" + S_L + "  - {name: r, kind: radar, detections: radar1.csv, prior: {roll_deg: .inf}}\n", r"sensors\[1\]\.prior\.roll_deg: expected a tolerance in deg >= 0"),
+        ("sensors:\n" + S_L + "  - {name: r, kind: radar, detections: radar1.csv, prior: 0.01}\n", r"sensors\[1\]\.prior: expected a mapping of tolerances"),
         ("sensors:\n" + S_L + S_R + "  - {name: s, kind: sonar, detections: radar1.csv}\n", r"m\.yaml: sensors\[2\]\.kind: unknown sensor kind 'sonar' \(expected one of: lidar, camera, radar, radar3d\)$"),
         ("sensors:\n" + S_L + "  - {name: r, kind: radar, detections: radar1.csv, elevation_fov_deg: -3}\n", r"sensors\[1\]\.elevation_fov_deg: expected a number of degrees in \(0, 90\] .* got -3"),
         ("sensors:\n" + S_L + "  - {name: r, kind: radar, detections: radar1.csv, elevation_fov_deg: wide}\n", r"sensors\[1\]\.elevation_fov_deg: .* got 'wide'"),
@@ -255,6 +259,15 @@ def test_write_dataset_round_trip(tmp_path):
     # writing what was read gives the same files
     again = write_dataset(back, tmp_path / "again")
     assert again.read_text() == manifest.read_text()
+
+
+def test_manifest_prior_is_read_and_written_back(tmp_path, rig):
+    text = "sensors:\n" + S_L + "  - {name: r, kind: radar, detections: radar1.csv, prior: {pitch_deg: 0.5, z_m: 0.01}}\n"
+    ds = load_manifest(write_manifest(rig, text))
+    assert ds.sensor("r").prior == {"pitch_deg": 0.5, "z_m": 0.01} and ds.sensor("lidar1").prior == {}
+    back = load_manifest(write_dataset(ds, tmp_path / "out"))
+    assert back.sensor("r").prior == {"pitch_deg": 0.5, "z_m": 0.01}
+    assert "prior" not in (tmp_path / "out" / "rig.yaml").read_text().split("name: lidar1")[1].split("\n")[0]
 
 
 def test_write_dataset_does_not_write_exclusions(tmp_path):

@@ -14,8 +14,6 @@ import yaml
 from rigcal.absolute.pipeline import absolute_calibration
 from rigcal.dataset import SensorKind
 from rigcal.errors import InputError
-from rigcal.geometry import from_rt
-from rigcal.geometry.so3 import matrix_from_rpy
 from rigcal.io.results.absolute import (
     ABSOLUTE_JSON_NAME,
     ABSOLUTE_YAML_NAME,
@@ -52,8 +50,15 @@ def result():
     return absolute_calibration(sim.dataset, "leica", labels, scan.points_external)
 
 
-def _from_args(x, y, z, yaw, pitch, roll) -> np.ndarray:
-    return from_rt(matrix_from_rpy(np.array([roll, pitch, yaw])), [x, y, z])
+def _from_quaternion_args(x, y, z, qx, qy, qz, qw):
+    R = np.array([
+        [1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qz * qw), 2 * (qx * qz + qy * qw)],
+        [2 * (qx * qy + qz * qw), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - qx * qw)],
+        [2 * (qx * qz - qy * qw), 2 * (qy * qz + qx * qw), 1 - 2 * (qx * qx + qy * qy)],
+    ])
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R, (x, y, z)
+    return T
 
 
 def test_write_read_round_trip_is_exact(result, tmp_path):
@@ -78,7 +83,13 @@ def test_write_read_round_trip_is_exact(result, tmp_path):
 
 def test_yaml_holds_the_plain_dict(result):
     data = yaml.safe_load(absolute_to_yaml_text(result))
+    frames = data.pop("frames")  # the frame contract's block (rigcal.io.results.frames)
     assert data == result.to_dict()  # the same plain data, floats exact
+    assert frames["reference_frame"] == "base_link" and frames["urdf"] is None
+    edges = {e["child"]: e for e in frames["static_transforms"]}
+    for est in result.sensors.values():
+        assert edges[est.frame_id]["parent"] == "base_link"
+        assert np.array_equal(edges[est.frame_id]["T_parent_child"], est.T_body_sensor)
     body = data["body_frame"]
     assert body["name"] == "base_link" and body["origin"] == "rear_axle"
     assert "rear axle" in body["definition"]
@@ -103,17 +114,18 @@ def test_parent_frame_renames_the_body_frame_everywhere(result, tmp_path):
     nodes = root.findall("node")
     assert len(nodes) == 3
     for node in nodes:
+        assert node.get("pkg") == "tf2_ros"
         args = node.get("args").split()
-        assert args[6] == "vehicle"
-        T = _from_args(*(float(v) for v in args[:6]))
-        assert np.allclose(T, result.sensors[args[7]].T_body_sensor, atol=1e-12)
+        assert args[7] == "vehicle"
+        T = _from_quaternion_args(*(float(v) for v in args[:7]))
+        assert np.allclose(T, result.sensors[args[8]].T_body_sensor, atol=1e-12)
     assert result.body_frame == "base_link"  # the result itself is unchanged
 
 
 def test_write_one_launch_file(result, tmp_path):
     p = write_absolute_launch(tmp_path / "tf.launch", result)
     root = ET.fromstring(p.read_text())
-    assert {n.get("args").split()[6] for n in root.findall("node")} == {"base_link"}
+    assert {n.get("args").split()[7] for n in root.findall("node")} == {"base_link"}
     p = write_absolute_launch(tmp_path / "tf.yaml", result, parent_frame="chassis")
     doc = yaml.safe_load(p.read_text())
     assert doc["parent_frame"] == "chassis"

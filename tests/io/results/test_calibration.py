@@ -81,6 +81,9 @@ def test_yaml_text_round_trips_to_dict_exactly():
     text = result_to_yaml_text(result)
     loaded = yaml.safe_load(text)
     expected = result.to_dict()
+    frames = loaded.pop("frames")  # the frame contract's block, beside to_dict()
+    assert frames["reference_frame"] == "velodyne" and frames["root"] == "velodyne"
+    assert frames["sensors"]["camera1"]["measured_frame"] == result.sensors["camera1"].frame_id
     assert math.isnan(loaded["rmse_m"].pop("camera1-radar1"))
     expected["rmse_m"].pop("camera1-radar1")
     assert loaded == expected  # floats bit for bit
@@ -124,9 +127,14 @@ def test_original_sensor_yaml_unknown_sensor():
 
 
 def pose_from_args(numbers: list[float]) -> np.ndarray:
-    x, y, z, yaw, pitch, roll = numbers
+    """x y z qx qy qz qw (tf2_ros's quaternion form) -> 4x4, with the formula written out."""
+    x, y, z, qx, qy, qz, qw = numbers
     T = np.eye(4)
-    T[:3, :3] = matrix_from_rpy(np.array([roll, pitch, yaw]))
+    T[:3, :3] = [
+        [1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qz * qw), 2 * (qx * qz + qy * qw)],
+        [2 * (qx * qy + qz * qw), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - qx * qw)],
+        [2 * (qx * qz - qy * qw), 2 * (qy * qz + qx * qw), 1 - 2 * (qx * qx + qy * qy)],
+    ]
     T[:3, 3] = [x, y, z]
     return T
 
@@ -140,17 +148,17 @@ def test_launch_reconstructs_T_reference_sensor():
     assert len(nodes) == 3  # every sensor but the reference
     names = set()
     for node, sensor in zip(nodes, ["camera1", "radar1", "radar3d_1"]):
-        assert node.get("pkg") == "tf" and node.get("type") == "static_transform_publisher"
+        assert node.get("pkg") == "tf2_ros" and node.get("type") == "static_transform_publisher"
         names.add(node.get("name"))
         args = node.get("args").split()
-        assert len(args) == 9
-        assert args[6:] == ["velodyne", result.sensors[sensor].frame_id, "100"]
-        T = pose_from_args([float(a) for a in args[:6]])
+        assert len(args) == 9  # x y z qx qy qz qw parent child: no period (/tf_static)
+        assert args[7:] == ["velodyne", result.sensors[sensor].frame_id]
+        T = pose_from_args([float(a) for a in args[:7]])
         # full float precision: the published pose is the calibrated one to rounding
         np.testing.assert_allclose(T, result.sensors[sensor].T_reference_sensor, atol=1e-12)
     assert len(names) == 3
     assert f"rigcal {rigcal.__version__}" in text
-    assert "Rz(yaw) Ry(pitch) Rx(roll)" in text
+    assert "x y z [m] qx qy qz qw parent child" in text
 
 
 def test_launch_node_names_are_valid_and_unique():

@@ -1,5 +1,6 @@
-"""Static-transform exports: every format is read back into 4x4 matrices (R = Rz(yaw) Ry(pitch)
-Rx(roll)) and compared with the input to 1e-9."""
+"""Static-transform exports: every format is read back into 4x4 matrices (quaternions (x, y, z, w)
+with an independent formula here; rpy as R = Rz(yaw) Ry(pitch) Rx(roll)) and compared with the
+input to 1e-9."""
 
 from __future__ import annotations
 
@@ -47,6 +48,18 @@ def pose(x, y, z, yaw, pitch, roll) -> np.ndarray:
     return from_rt(Rz(yaw) @ Ry(pitch) @ Rx(roll), [x, y, z])
 
 
+def quat_pose(x, y, z, qx, qy, qz, qw) -> np.ndarray:
+    """The rotation of a unit quaternion (x, y, z, w), written out here (not rigcal's code)."""
+    n = math.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
+    assert abs(n - 1) < 1e-12
+    R = np.array([
+        [1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qz * qw), 2 * (qx * qz + qy * qw)],
+        [2 * (qx * qy + qz * qw), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - qx * qw)],
+        [2 * (qx * qz - qy * qw), 2 * (qy * qz + qx * qw), 1 - 2 * (qx * qx + qy * qy)],
+    ])
+    return from_rt(R, [x, y, z])
+
+
 def transforms(seed: int = 0) -> dict[str, np.ndarray]:
     rng = np.random.default_rng(seed)
     out = {
@@ -65,8 +78,8 @@ def named(args: list[str]) -> dict[str, str]:
 
 
 def from_named(values: dict[str, str]) -> tuple[str, str, np.ndarray]:
-    f = {k: float(values[f"--{k}"]) for k in ("x", "y", "z", "yaw", "pitch", "roll")}
-    T = pose(f["x"], f["y"], f["z"], f["yaw"], f["pitch"], f["roll"])
+    f = {k: float(values[f"--{k}"]) for k in ("x", "y", "z", "qx", "qy", "qz", "qw")}
+    T = quat_pose(f["x"], f["y"], f["z"], f["qx"], f["qy"], f["qz"], f["qw"])
     return values["--frame-id"], values["--child-frame-id"], T
 
 
@@ -77,22 +90,46 @@ def test_ros1_launch_round_trip():
     assert len(nodes) == len(Ts)
     names = set()
     for node in nodes:
-        assert (node.get("pkg"), node.get("type")) == ("tf", "static_transform_publisher")
+        # tf2_ros (publishes /tf_static), not the old tf publisher; quaternion form, no period
+        assert (node.get("pkg"), node.get("type")) == ("tf2_ros", "static_transform_publisher")
         names.add(node.get("name"))
-        x, y, z, yaw, pitch, roll, parent, child, period = node.get("args").split()
-        assert (parent, period) == (PARENT, "100")
-        T = pose(*(float(v) for v in (x, y, z, yaw, pitch, roll)))
+        x, y, z, qx, qy, qz, qw, parent, child = node.get("args").split()
+        assert parent == PARENT
+        T = quat_pose(*(float(v) for v in (x, y, z, qx, qy, qz, qw)))
         np.testing.assert_allclose(T, Ts[child], atol=1e-9)
     assert len(names) == len(Ts)
 
 
-def test_ros1_argument_order_is_yaw_pitch_roll():
-    text = ros1_launch_text({"s": pose(1, 2, 3, 0.3, 0.2, 0.1)}, PARENT)
+def test_ros1_argument_order_is_x_y_z_qx_qy_qz_qw():
+    # a 90 deg yaw: q = (0, 0, sin 45, cos 45)
+    text = ros1_launch_text({"s": pose(1, 2, 3, math.pi / 2, 0.0, 0.0)}, PARENT)
     args = ET.fromstring(text).find("node").get("args").split()
-    assert [float(a) for a in args[:6]] == pytest.approx([1, 2, 3, 0.3, 0.2, 0.1], abs=1e-15)
-    # reading them as roll pitch yaw (the classic mistake) gives another rotation
-    wrong = pose(1, 2, 3, 0.1, 0.2, 0.3)
-    assert np.max(np.abs(wrong - pose(1, 2, 3, 0.3, 0.2, 0.1))) > 0.1
+    h = math.sqrt(0.5)
+    assert [float(a) for a in args[:7]] == pytest.approx([1, 2, 3, 0, 0, h, h], abs=1e-15)
+    assert args[7:] == [PARENT, "s"]
+    # a 30 deg roll read with w first (the classic mistake) is another rotation
+    args = ET.fromstring(ros1_launch_text({"s": pose(0, 0, 0, 0, 0, math.pi / 6)}, PARENT)
+                         ).find("node").get("args").split()
+    q = [float(a) for a in args[3:7]]
+    assert q == pytest.approx([math.sin(math.pi / 12), 0, 0, math.cos(math.pi / 12)], abs=1e-15)
+    assert np.abs(quat_pose(0, 0, 0, q[3], q[0], q[1], q[2]) - quat_pose(0, 0, 0, *q)).max() > 0.1
+
+
+def test_ros1_launch_takes_edges_with_several_parents():
+    """A frame plan's transforms: a camera link under the reference and its optical child."""
+    T_link = pose(1, 0.2, 1.2, 0.1, 0.0, 0.0)
+    T_opt = pose(0, 0, 0, -math.pi / 2, 0.0, -math.pi / 2)
+    edges = [(PARENT, "cam_link", T_link), ("cam_link", "cam_optical_frame", T_opt)]
+    nodes = ET.fromstring(ros1_launch_text(edges)).findall("node")
+    got = {}
+    for node in nodes:
+        a = node.get("args").split()
+        got[(a[7], a[8])] = quat_pose(*(float(v) for v in a[:7]))
+    assert set(got) == {(PARENT, "cam_link"), ("cam_link", "cam_optical_frame")}
+    np.testing.assert_allclose(got[(PARENT, "cam_link")], T_link, atol=1e-15)
+    np.testing.assert_allclose(got[("cam_link", "cam_optical_frame")], T_opt, atol=1e-15)
+    with pytest.raises(InputError, match="'cam_link' is published twice"):
+        ros1_launch_text(edges + [("other", "cam_link", T_link)])
 
 
 class _Recorder:
@@ -135,7 +172,7 @@ def test_ros2_launch_compiles_and_round_trips(monkeypatch):
         assert node["package"] == "tf2_ros"
         assert node["executable"] == "static_transform_publisher"
         values = named(node["arguments"])
-        assert set(values) == {"--x", "--y", "--z", "--yaw", "--pitch", "--roll", "--frame-id",
+        assert set(values) == {"--x", "--y", "--z", "--qx", "--qy", "--qz", "--qw", "--frame-id",
                                "--child-frame-id"}
         parent, child, T = from_named(values)
         assert parent == PARENT
@@ -165,10 +202,15 @@ def test_yaml_and_json_round_trip(fmt):
     assert "Rz(yaw) @ Ry(pitch) @ Rx(roll)" in data["convention"]
     assert list(data["transforms"]) == list(Ts)
     for child, entry in data["transforms"].items():
+        assert entry["parent"] == PARENT
         M = np.array(entry["T_parent_child"])
         np.testing.assert_array_equal(M, Ts[child])  # full precision: exact
         roll, pitch, yaw = entry["rpy"]
         np.testing.assert_allclose(pose(*entry["xyz"], yaw, pitch, roll), Ts[child], atol=1e-9)
+        # quaternions (x, y, z, w) beside rpy, w >= 0
+        assert entry["quaternion_xyzw"][3] >= 0
+        np.testing.assert_allclose(quat_pose(*entry["xyz"], *entry["quaternion_xyzw"]), Ts[child],
+                                   atol=1e-9)
 
 
 def test_full_precision():
@@ -176,7 +218,7 @@ def test_full_precision():
     T = pose(x, 0, 0, 1e-10, 0, 0)
     args = ET.fromstring(ros1_launch_text({"s": T}, PARENT)).find("node").get("args").split()
     assert float(args[0]) == x
-    assert float(args[3]) == pytest.approx(1e-10, rel=1e-12)
+    assert float(args[5]) == pytest.approx(math.sin(0.5e-10), rel=1e-12)  # qz of a 1e-10 yaw
 
 
 def test_write_tf_export_picks_format_from_name(tmp_path):

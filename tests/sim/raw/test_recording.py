@@ -220,3 +220,13 @@ def test_recording_validation(placements):
         simulate_recording([lidar], placements, rng="seed")
     with pytest.raises(InputError, match="num_boards must be >= 1"):
         raw_rig_placements(0, [lidar], 0)
+
+
+def test_simulation_reports_its_progress_frame_by_frame(placements):
+    calls: list[tuple[int, int]] = []
+    rec = simulate_recording(tiny_rig(), placements, 5, dwell_s=1.0, transition_s=0.6,
+                             progress=lambda done, total: calls.append((done, total)))
+    total = len(rec.frames)
+    assert calls == [(k, total) for k in range(total + 1)]
+    again = simulate_recording(tiny_rig(), placements, 5, dwell_s=1.0, transition_s=0.6)
+    assert [f.t_ns for f in again.frames] == [f.t_ns for f in rec.frames]  # the same recording

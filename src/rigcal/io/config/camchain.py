@@ -344,6 +344,10 @@ def _load_json(text: str, source: str) -> Any:
         raise InputError(
             f"{source}: line {exc.lineno}, column {exc.colno}: invalid JSON: {exc.msg}"
         ) from None
+    except ValueError as exc:  # an integer of more than 4300 digits
+        raise InputError(f"{source}: not a usable JSON document ({exc})") from None
+    except RecursionError:
+        raise InputError(f"{source}: JSON nested too deeply") from None
 
 
 def parse_intrinsics_json_text(text: str, source: str) -> CameraModel:
@@ -419,6 +423,40 @@ def read_camera_file(path: str | os.PathLike[str]) -> Camchain:
     return parse_camera_file_text(read_text(p, "camera file"), str(p))
 
 
+# ---------------------------------------------------------------------------- choosing one camera
+def select_camera(
+    chain: Camchain,
+    source: str,
+    *,
+    camera: str | None = None,
+    names: tuple[str, ...] = (),
+    topic: str | None = None,
+) -> tuple[str, CameraModel]:
+    """(name, model) of one camera of a camera file: ``camera`` if given (InputError if the file
+    lacks it), else the only one, else the one whose ``rostopic`` is ``topic``, else the first
+    named like one of ``names`` (a sensor's name, its frame_id); InputError listing the
+    cameras otherwise."""
+    cams = chain.cameras
+    if camera is not None:
+        if camera not in cams:
+            raise InputError(f"{source}: no camera '{camera}' (cameras: {', '.join(cams)})")
+        return camera, cams[camera]
+    if len(cams) == 1:
+        name = next(iter(cams))
+        return name, cams[name]
+    if topic is not None:
+        hits = [n for n, t in chain.topics.items() if t == topic]
+        if len(hits) == 1:
+            return hits[0], cams[hits[0]]
+    for key in names:
+        if key in cams:
+            return key, cams[key]
+    raise InputError(
+        f"{source} holds cameras {', '.join(cams)} and none has the topic {topic or '-'} or the "
+        f"name {' / '.join(names) or '-'}; say which with 'camera' (e.g. camera: cam1)"
+    )
+
+
 # ---------------------------------------------------------------------------- writing
 def _kalibr_node(camera: CameraModel, name: str) -> dict[str, Any]:
     p = [float(v) for v in camera.params]
@@ -476,8 +514,32 @@ def format_camchain(chain: Camchain) -> str:
     return yaml.safe_dump(doc, sort_keys=False, default_flow_style=None)
 
 
+def calibration_camchain(cameras: list[tuple[CameraModel, np.ndarray, str | None]]) -> Camchain:
+    """A Kalibr camchain of calibrated cameras: per camera (in order ``cam0``, ``cam1``, ...)
+    its model, ``T_reference_camera`` (4, 4; the camera's optical frame in the calibration's
+    reference frame) and its ROS image topic (None if unknown). ``camN``'s ``T_cn_cnm1`` =
+    ``inv(T_reference_camN) @ T_reference_cam(N-1)`` maps points in ``cam(N-1)`` into ``camN``."""
+    if not cameras:
+        raise InputError("a camchain needs at least one camera")
+    names = [f"cam{i}" for i in range(len(cameras))]
+    models = {n: c[0] for n, c in zip(names, cameras)}
+    T_to_from: dict[tuple[str, str], np.ndarray] = {}
+    for i in range(1, len(cameras)):
+        T_ref_prev = np.asarray(cameras[i - 1][1], dtype=float)
+        T_ref_this = np.asarray(cameras[i][1], dtype=float)
+        R = T_ref_this[:3, :3].T
+        T = np.eye(4)
+        T[:3, :3] = R @ T_ref_prev[:3, :3]
+        T[:3, 3] = R @ (T_ref_prev[:3, 3] - T_ref_this[:3, 3])
+        T_to_from[(names[i], names[i - 1])] = T
+    topics = {n: c[2] for n, c in zip(names, cameras) if c[2]}
+    return Camchain(models, T_to_from, topics)
+
+
 __all__ = [
     "Camchain",
+    "calibration_camchain",
+    "select_camera",
     "format_camchain",
     "parse_camchain_text",
     "parse_camera_file_text",

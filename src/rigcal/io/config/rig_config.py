@@ -7,13 +7,15 @@ Example::
       - name: lidar1
         kind: lidar
         topic: /velodyne_points
-        frame_id: velodyne                       # optional, default = name
+        frame_id: velodyne                       # optional, default: the messages' frame_id, else name
         detector: {roi_min: [-2, 3, -3], roi_max: [2.5, 6.5, 1]}   # optional detector settings
       - name: camera1
         kind: camera
         input: mono                              # mono (default) | stereo_cloud | stereo_pair
         topic: /camera/image_raw
-        intrinsics: intrinsics.ini               # ROS ini / CameraInfo YAML; or camera_info_topic
+        intrinsics: intrinsics.ini               # any camera file (ROS ini, CameraInfo YAML, Kalibr
+                                                 # camchain, intrinsics JSON); or camera_info_topic
+        camera: cam0                             # optional: which camera of a multi-camera file
       - name: camera2
         kind: camera
         input: stereo_pair
@@ -32,7 +34,11 @@ Example::
       windows_s: [[12.0, 15.5], [20.0, 23.0]]    # optional: placements given by hand (seconds)
 
 ``detector`` keys are the fields of the sensor's detector configuration (checked when the
-detectors are built). Paths are relative to the file's folder.
+detectors are built). Paths are relative to the file's folder. A camera's ``intrinsics`` is any
+camera file :func:`rigcal.io.config.camchain.read_camera_file` reads; from a multi-camera file
+(a Kalibr camchain) the camera is ``camera``, else the one whose ``rostopic`` is the sensor's
+topic, else the one named like the sensor or its frame_id. Without ``frame_id`` the sensor's
+frame is the ``header.frame_id`` of its messages (when they carry one), else its name.
 """
 
 from __future__ import annotations
@@ -67,7 +73,7 @@ INPUTS = {
 }
 _SENSOR_KEYS = (
     "name", "kind", "input", "topic", "right_topic", "frame_id", "intrinsics",
-    "camera_info_topic", "stereo", "elevation_fov_deg", "detector",
+    "camera_info_topic", "stereo", "elevation_fov_deg", "detector", "camera",
 )
 _TOP_KEYS = ("sensors", "reference", "board", "placements")
 _PLACEMENT_KEYS = ("stability", "windows_s", "min_sensors")
@@ -87,6 +93,10 @@ class SensorSetup:
     stereo: Mapping[str, float] = field(default_factory=dict)
     max_elevation_rad: float = math.radians(DEFAULT_MAX_ELEVATION_DEG)
     detector: Mapping[str, Any] = field(default_factory=dict)
+    #: False: ``frame_id`` defaulted to the name (the messages' frame_id replaces it if known)
+    frame_id_given: bool = True
+    #: the camera of a multi-camera intrinsics file (a Kalibr camchain's ``cam1``)
+    camera: str | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "stereo", MappingProxyType(dict(self.stereo)))
@@ -167,6 +177,11 @@ def _parse_sensor(i: int, raw: Any, source: str, base_dir: Path) -> SensorSetup:
     if not isinstance(det, dict):
         raise InputError(f"{where}.detector: expected a mapping of detector settings, got {type_name(det)}")
     frame_id = raw.get("frame_id")
+    camera = raw.get("camera")
+    if camera is not None:
+        if intrinsics is None:
+            raise InputError(f"{where}.camera: names a camera of the intrinsics file; give intrinsics")
+        camera = nonempty_string(camera, f"{where}.camera")
     return SensorSetup(
         name=name,
         kind=kind,
@@ -179,6 +194,8 @@ def _parse_sensor(i: int, raw: Any, source: str, base_dir: Path) -> SensorSetup:
         stereo={k: float(v) for k, v in (raw.get("stereo") or {}).items()},
         max_elevation_rad=math.radians(float(elev)),
         detector=det,
+        frame_id_given=frame_id is not None,
+        camera=camera,
     )
 
 

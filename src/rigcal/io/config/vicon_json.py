@@ -86,6 +86,10 @@ def load_json(text: str, source: str) -> Any:
         raise InputError(
             f"{source}: line {exc.lineno}, column {exc.colno}: invalid JSON: {exc.msg}"
         ) from None
+    except ValueError as exc:  # an integer of more than 4300 digits
+        raise InputError(f"{source}: not a usable JSON document ({exc})") from None
+    except RecursionError:
+        raise InputError(f"{source}: JSON nested too deeply") from None
 
 
 def _is_number(v: Any) -> bool:

@@ -24,7 +24,10 @@ Fields of a sensor:
 * ``frame_id``: defaults to the accumulator entries' ``frame_id`` for accumulator input, else
   to ``name``;
 * ``elevation_fov_deg``: the largest |elevation| a radar sees, in degrees (a half-angle, like the
-  original tool's ``max_elevation``); in (0, 90]; default 9.
+  original tool's ``max_elevation``); in (0, 90]; default 9;
+* ``prior``: tolerances (1 sigma) of the sensor's nominal mounting given with ``--initial``,
+  e.g. ``{z_m: 0.01, roll_deg: 0.5, pitch_deg: 0.5}`` along / about the sensor's own axes
+  (:mod:`rigcal.problem.priors`; 0 holds a direction).
 
 The ignore file's boards are excluded with :meth:`Dataset.with_excluded` by :func:`load_manifest`
 and :func:`parse_manifest`; the ``*_with_ignored`` variants return the dataset without them plus
@@ -65,11 +68,12 @@ from rigcal.io.atomic import atomic_write_text, mark_output
 from rigcal.io.dataset.detections_csv import format_detections_csv, parse_detections_csv
 from rigcal.io.dataset.ignore import parse_ignore_yaml
 from rigcal.io.limits import path_stat
+from rigcal.problem.priors import check_prior
 
 MANIFEST_NAME = "rig.yaml"
 
 _TOP_KEYS = ("sensors", "reference", "board", "ignore")
-_SENSOR_KEYS = ("name", "kind", "detections", "frame_id", "elevation_fov_deg", "topic")
+_SENSOR_KEYS = ("name", "kind", "detections", "frame_id", "elevation_fov_deg", "topic", "prior")
 _BOARD_KEYS = tuple(f.name for f in fields(BoardGeometry))
 _CSV_SUFFIXES = (".csv",)
 _YAML_SUFFIXES = (".yaml", ".yml")
@@ -87,6 +91,7 @@ class _SensorEntry:
     frame_id: str | None
     elevation_fov_deg: float | None
     topic: str | None
+    prior: Mapping[str, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -113,13 +118,25 @@ def _refuse_detection_rig(data: Mapping[Any, Any], source: str) -> None:
         )
 
 
+#: longest sensor name (characters; at most twice as many bytes in UTF-8): it names the sensor's
+#: files (``<sensor>.yaml``), which a file system holds up to 255 bytes
+MAX_SENSOR_NAME = 100
+
+
 def check_sensor_name(name: Any, where: str) -> str:
-    """``name`` if it can name a sensor (and its files): a non-empty string without whitespace
-    or path separators, not ``.`` or ``..``; else InputError."""
+    """``name`` if it can name a sensor (and its files): a non-empty string of at most
+    :data:`MAX_SENSOR_NAME` characters (and twice as many bytes in UTF-8) without whitespace,
+    control characters (NUL included) or path separators, not ``.`` or ``..``; else
+    InputError naming ``where``."""
     name = nonempty_string(name, where)
-    if _BAD_NAME.search(name) or name in (".", ".."):
+    if _BAD_NAME.search(name) or name in (".", "..") or not name.isprintable():
         raise InputError(
-            f"{where}: sensor name {name!r} must not contain whitespace or path separators"
+            f"{where}: sensor name {name!r} must not contain whitespace or path separators (nor control characters)"
+        )
+    if len(name) > MAX_SENSOR_NAME or len(name.encode("utf-8")) > 2 * MAX_SENSOR_NAME:
+        raise InputError(
+            f"{where}: sensor name {name[:20]!r}... is {len(name)} characters long; expected at most "
+            f"{MAX_SENSOR_NAME} (it names the sensor's files)"
         )
     return name
 
@@ -139,6 +156,8 @@ def _parse_sensor(i: int, raw: Any, source: str) -> _SensorEntry:
     name = check_sensor_name(raw["name"], f"{where}.name")
     kind = SensorKind.parse(nonempty_string(raw["kind"], f"{where}.kind"), f"{where}.kind")
     detections = nonempty_string(raw["detections"], f"{where}.detections")
+    if "\x00" in detections:
+        raise InputError(f"{where}.detections: {detections!r} contains a NUL byte; expected a file path")
     suffix = Path(detections).suffix.lower()
     if suffix not in _CSV_SUFFIXES + _YAML_SUFFIXES:
         raise InputError(
@@ -164,7 +183,8 @@ def _parse_sensor(i: int, raw: Any, source: str) -> _SensorEntry:
                 f"(the largest |elevation| the radar sees), got {elevation!r}"
             )
         elevation = float(elevation)
-    return _SensorEntry(i, name, kind, detections, frame_id, elevation, topic)
+    prior = check_prior(raw["prior"], f"{where}.prior") if "prior" in raw else None
+    return _SensorEntry(i, name, kind, detections, frame_id, elevation, topic, prior)
 
 
 def parse_board(raw: Any, source: str) -> BoardGeometry:
@@ -227,6 +247,8 @@ def _parse_spec(text: str, source: str) -> _Manifest:
     ignore = data.get("ignore")
     if ignore is not None:
         ignore = nonempty_string(ignore, f"{source}: ignore")
+        if "\x00" in ignore:
+            raise InputError(f"{source}: ignore: {ignore!r} contains a NUL byte; expected a file path")
     return _Manifest(sensors, reference, parse_board(data.get("board"), source), ignore)
 
 
@@ -285,6 +307,7 @@ def _load_sensor(
             DEFAULT_MAX_ELEVATION_DEG if elevation is None else elevation
         ),
         source=str(path),
+        prior=entry.prior or {},
     )
 
 
@@ -443,6 +466,8 @@ def format_manifest(dataset: Dataset, detection_files: Mapping[str, str]) -> str
         }
         if s.kind.is_radar or s.max_elevation_rad != default_elevation:
             entry["elevation_fov_deg"] = _degrees_for(float(s.max_elevation_rad))
+        if s.prior:
+            entry["prior"] = {k: float(v) for k, v in s.prior.items()}
         sensors.append(entry)
     data: dict[str, Any] = {"sensors": sensors}
     if dataset.reference is not None:

@@ -6,8 +6,10 @@
   ``covariance``; floats at full precision (``repr``), so a read gives back the same numbers.
   JSON is strict: NaN and infinities become ``null``.
 * launch files: ROS 1 ``absolute.launch`` and ROS 2 ``absolute.launch.py`` (or ``.sh``, YAML,
-  JSON) through :mod:`rigcal.io.results.tf_export`, one static transform per sensor frame with the
-  body frame as the parent (default ``base_link``; ``parent_frame`` renames it).
+  JSON) through :mod:`rigcal.io.results.tf_export`, the static transforms of the result's frame
+  plan (:mod:`rigcal.io.results.frames`): one per sensor frame with the body frame as the parent
+  (default ``base_link``; ``parent_frame`` renames it). ``absolute.yaml`` carries the same
+  ``frames`` block as ``calibration.yaml``.
 
 :func:`read_absolute_yaml` / :func:`parse_absolute_yaml` read ``absolute.yaml`` (or the JSON)
 back into :class:`AbsoluteTransforms`: the body frame's name and ``{sensor frame: T_body_sensor}``.
@@ -19,7 +21,7 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
-from typing import Any, Callable, Mapping, NamedTuple, Sequence
+from typing import Any, Callable, NamedTuple, Sequence
 
 import numpy as np
 
@@ -30,7 +32,7 @@ from rigcal.io.atomic import atomic_write_text, mark_output
 from rigcal.io.results.tf_export import (
     ros1_launch_text,
     ros2_launch_py_text,
-    ros2_run_commands,
+    sh_text,
     write_tf_export,
 )
 from rigcal.geometry.se3 import as_rigid
@@ -43,6 +45,7 @@ __all__ = [
     "absolute_to_json_text",
     "absolute_to_yaml_text",
     "body_transforms",
+    "frame_plan",
     "parse_absolute_yaml",
     "read_absolute_yaml",
     "write_absolute",
@@ -55,14 +58,10 @@ ABSOLUTE_JSON_NAME = "absolute.json"
 LAUNCH_NAMES = {"ros1": "absolute.launch", "ros2": "absolute.launch.py", "sh": "absolute_tf.sh"}
 
 
-def _sh_text(transforms: Mapping[str, np.ndarray], parent: str) -> str:
-    return "#!/bin/sh\n" + "\n".join(ros2_run_commands(transforms, parent)) + "\n"
-
-
-_LAUNCH_TEXT: dict[str, Callable[[Mapping[str, np.ndarray], str], str]] = {
+_LAUNCH_TEXT: dict[str, Callable[..., str]] = {
     "ros1": ros1_launch_text,
     "ros2": ros2_launch_py_text,
-    "sh": _sh_text,
+    "sh": sh_text,
 }
 
 
@@ -116,8 +115,35 @@ def body_transforms(
     return out
 
 
+def frame_plan(result: AbsoluteResult, parent_frame: str | None = None, urdf: Any = None) -> Any:
+    """The :class:`~rigcal.io.results.frames.FramePlan` of an absolute result: every sensor's
+    ``T_body_sensor`` under the body frame (``parent_frame`` renames it), frame names resolved
+    in ``urdf`` when given."""
+    from rigcal.io.results.calibration_files import CalibrationTransforms
+    from rigcal.io.results.frames import plan_frames
+
+    parent = _parent(result, parent_frame)
+    cal = CalibrationTransforms(
+        "absolute", parent, body_transforms(result, parent), "absolute",
+        {est.frame_id: est.kind.value for est in result.sensors.values()},
+        names={est.frame_id: name for name, est in result.sensors.items()},
+        bounded={est.frame_id: tuple(est.bounded) for est in result.sensors.values() if est.bounded},
+        bounded_values={est.frame_id: est.bounded_values for est in result.sensors.values() if est.bounded},
+    )
+    return plan_frames(cal, urdf)
+
+
 def _dump_yaml(data: Any) -> str:
     return dump_yaml(data, flow=None)
+
+
+def _document(result: AbsoluteResult, parent_frame: str | None) -> dict[str, Any]:
+    from rigcal.io.results.frames import frames_block
+
+    res = _renamed(result, parent_frame)
+    data = res.to_dict()
+    data["frames"] = frames_block(frame_plan(res))  # refuses what is no TF tree
+    return data
 
 
 def _renamed(result: AbsoluteResult, parent_frame: str | None) -> AbsoluteResult:
@@ -131,9 +157,7 @@ def absolute_to_yaml_text(result: AbsoluteResult, parent_frame: str | None = Non
     ``parent_frame`` renames the body frame."""
     if not isinstance(result, AbsoluteResult):
         raise InputError(f"expected an AbsoluteResult, got {type(result).__name__}")
-    res = _renamed(result, parent_frame)
-    body_transforms(res)  # refuse what could not be read back as a TF tree
-    return _dump_yaml(res.to_dict())
+    return _dump_yaml(_document(result, parent_frame))
 
 
 def absolute_to_json_text(result: AbsoluteResult, parent_frame: str | None = None) -> str:
@@ -141,9 +165,7 @@ def absolute_to_json_text(result: AbsoluteResult, parent_frame: str | None = Non
     infinities become ``null``, integer keys strings)."""
     if not isinstance(result, AbsoluteResult):
         raise InputError(f"expected an AbsoluteResult, got {type(result).__name__}")
-    res = _renamed(result, parent_frame)
-    body_transforms(res)
-    return json.dumps(json_safe(res.to_dict()), indent=2, allow_nan=False) + "\n"
+    return json.dumps(json_safe(_document(result, parent_frame)), indent=2, allow_nan=False) + "\n"
 
 
 def parse_absolute_yaml(text: str, source: str = ABSOLUTE_YAML_NAME) -> AbsoluteTransforms:
@@ -201,8 +223,7 @@ def write_absolute_launch(
     the parent (``parent_frame`` overrides the result's name); ``fmt`` one of ros1, ros2, sh,
     yaml, json (default: from the file name, see
     :func:`rigcal.io.results.tf_export.write_tf_export`)."""
-    parent = _parent(result, parent_frame)
-    return write_tf_export(path, body_transforms(result, parent), parent, fmt)
+    return write_tf_export(path, frame_plan(result, parent_frame).transforms, None, fmt)
 
 
 def write_absolute(
@@ -225,13 +246,13 @@ def write_absolute(
             f"launch formats {unknown} unknown (expected some of: {', '.join(LAUNCH_NAMES)})"
         )
     parent = _parent(result, parent_frame)
-    transforms = body_transforms(result, parent)
+    transforms = frame_plan(result, parent).transforms
     files: list[tuple[Path, str]] = [
         (out / ABSOLUTE_YAML_NAME, absolute_to_yaml_text(result, parent)),
         (out / ABSOLUTE_JSON_NAME, absolute_to_json_text(result, parent)),
     ]
     for fmt in dict.fromkeys(launch):
-        files.append((out / LAUNCH_NAMES[fmt], _LAUNCH_TEXT[fmt](transforms, parent)))
+        files.append((out / LAUNCH_NAMES[fmt], _LAUNCH_TEXT[fmt](transforms)))
     written = [atomic_write_text(p, text) for p, text in files]
     mark_output(out)
     return written

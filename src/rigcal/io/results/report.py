@@ -39,12 +39,13 @@ def write_report(data: Mapping[str, Any], out_dir: str | os.PathLike[str],
 
 
 def write_calibration_set(result, dataset, out_dir: str | os.PathLike[str],
-                          raw_images: list | None = None) -> list[Path]:
+                          raw_images: list | None = None, urdf=None) -> list[Path]:
     """A calibration's whole output: ``calibration.yaml``, ``<sensor>.yaml``,
     ``calibration.launch`` (:func:`rigcal.io.results.calibration.write_results`) and the report
     (``report.json``, ``report.html``) of ``result`` on ``dataset``, with the raw-data images
     (:func:`rigcal.report.raw.raw_overlays`) when given. What ``rigcal calibrate``, ``calibrate
-    --batch`` and the demo write."""
+    --batch`` and the demo write. ``urdf`` (a parsed URDF, e.g. the robot's given as
+    ``--initial``) names the frames in the result files (:mod:`rigcal.io.results.frames`)."""
     from rigcal.io.results.calibration import write_results
     from rigcal.report.data import calibration_report
     from rigcal.report.raw import with_raw
@@ -52,14 +53,14 @@ def write_calibration_set(result, dataset, out_dir: str | os.PathLike[str],
     report = calibration_report(result, dataset)
     if raw_images is not None:
         report = with_raw(report, raw_images)
-    return write_results(result, out_dir) + write_report(report, out_dir)
+    return write_results(result, out_dir, urdf) + write_report(report, out_dir)
 
 
 def read_report_data(folder: str | os.PathLike[str]) -> dict[str, Any]:
     """The report data of a result folder of ``rigcal calibrate``, ``mocap`` or ``absolute``:
     its ``report.json``; without one, the result file alone (no detections). InputError naming
     the folder and what was expected when it holds neither."""
-    from rigcal.io._text import load_yaml, read_text
+    from rigcal.io._text import load_json, load_yaml, read_text
     from rigcal.report.data import result_only_report
     from rigcal.report.page import check_report_data
 
@@ -69,11 +70,7 @@ def read_report_data(folder: str | os.PathLike[str]) -> dict[str, Any]:
                          "mocap or absolute")
     path = root / REPORT_JSON_NAME
     if path.exists():
-        text = read_text(path, "report data")
-        try:
-            data = json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise InputError(f"{path}: not valid JSON (line {exc.lineno}: {exc.msg})") from None
+        data = load_json(read_text(path, "report data"), str(path))
         return dict(check_report_data(data, str(path)))
     absolute, calibration = root / "absolute.yaml", root / "calibration.yaml"
     if absolute.exists():

@@ -485,6 +485,7 @@ def parse_urdf(text: str, source: str = "<urdf>") -> Urdf:
             child_element=Span(ends["child"].start, ends["child"].end),
         )
         parent_joint[child_link] = name
+    _refuse_cycles(joints, parent_joint, source)
     return Urdf(
         source=source,
         text=text,
@@ -493,6 +494,27 @@ def parse_urdf(text: str, source: str = "<urdf>") -> Urdf:
         joints=MappingProxyType(joints),
         parent_joint=MappingProxyType(parent_joint),
     )
+
+
+def _refuse_cycles(joints: Mapping[str, Joint], parent_joint: Mapping[str, str], source: str) -> None:
+    """InputError naming the joints of a cycle, anywhere in the file (a URDF is a tree: a cycle
+    away from the sensors' chains would be copied into the output as it is)."""
+    done: set[str] = set()
+    for start in parent_joint:
+        path: list[str] = []
+        on_path: set[str] = set()
+        link = start
+        while link in parent_joint and link not in done:
+            if link in on_path:
+                cycle = sorted((joints[parent_joint[c]] for c in path[path.index(link):]), key=lambda j: j.line)
+                names = ", ".join(f"'{j.name}'" for j in cycle)
+                links = ", ".join(sorted(j.child for j in cycle))
+                raise InputError(f"{source}: line {cycle[0].line}: joints {names} form a cycle (links {links}); "
+                                 "a URDF is a tree")
+            on_path.add(link)
+            path.append(link)
+            link = joints[parent_joint[link]].parent
+        done.update(path)
 
 
 # --------------------------------------------------------------------------------------------
@@ -814,30 +836,64 @@ def update_urdf_text(
 # --------------------------------------------------------------------------------------------
 # calibrated frames -> URDF links (missing links, camera optical frames)
 
-#: REP 103: a camera's optical frame (x right, y down, z forward) in its body-convention link
-#: (x forward, y left, z up) is the fixed rotation rpy = (-pi/2, 0, -pi/2).
-OPTICAL_RPY = (-math.pi / 2, 0.0, -math.pi / 2)
-_R_BODY_OPTICAL = matrix_from_origin((0.0, 0.0, 0.0), OPTICAL_RPY)
-
-
-def _is_optical_joint(joint: Joint) -> bool:
-    if joint.type != "fixed":
-        return False
-    T = matrix_from_origin(joint.origin.xyz, joint.origin.rpy)
-    return bool(np.allclose(T, _R_BODY_OPTICAL, atol=1e-6))
+#: REP 103: the optical frame's fixed rotation in its body-convention camera link (decided in
+#: :mod:`rigcal.io.results.frames`, the one place for the frame contract).
+from rigcal.io.results.frames import OPTICAL_RPY  # noqa: E402, F401  (re-exported)
 
 
 @dataclass(frozen=True)
 class SensorLinks:
     """How calibrated frames map onto a URDF: ``updates`` (link -> ``T_body_link``) and
     ``joint_for`` for :func:`update_urdf_text`, frames to ``add`` as new links, frames
-    ``skipped`` because the URDF lacks them, and a note per optical-frame mapping."""
+    ``skipped`` because the URDF lacks them, and a note per optical-frame mapping; ``body_link``
+    is the link every pose is relative to (a camera reference's body-convention link)."""
 
     updates: Mapping[str, np.ndarray]
     joint_for: Mapping[str, str]
     add: Mapping[str, np.ndarray]
     skipped: tuple[str, ...]
     notes: tuple[str, ...]
+    body_link: str = ""
+
+
+def link_names(urdf: Urdf) -> str:
+    """The URDF's link names for a message (the first 12, then how many in all)."""
+    return _names(urdf.links)
+
+
+def sensor_links(urdf: Urdf, plan: Any, add_missing: bool = False) -> SensorLinks:
+    """The URDF updates of a frame plan (:func:`rigcal.io.results.frames.plan_frames` made with
+    this ``urdf``): each calibrated transform ``(root, link, T_root_link)`` whose link the URDF
+    has updates the joint carrying that link (a camera's optical joint is kept: the optical
+    child follows); a link the URDF lacks is skipped, or with ``add_missing`` added on a fixed
+    joint from the root. If nothing at all matches, InputError naming both sides."""
+    body_link = plan.root
+    if body_link not in urdf.links:
+        raise InputError(
+            f"{urdf.source}: no link named '{body_link}', the frame the calibration is relative "
+            f"to (links: {_names(urdf.links)}); set the reference sensor's frame_id in the "
+            "manifest to its URDF link, or give --body-link"
+        )
+    updates: dict[str, np.ndarray] = {}
+    add: dict[str, np.ndarray] = {}
+    skipped: list[str] = []
+    for edge in plan.transforms:
+        if not edge.calibrated:
+            continue
+        if edge.child in urdf.links:
+            updates[edge.child] = edge.T_parent_child
+        elif add_missing:
+            add[edge.child] = edge.T_parent_child
+        else:
+            skipped.append(edge.child)
+    if not updates and not add:
+        frames = [s.frame_id for s in plan.sensors]
+        raise InputError(
+            f"{urdf.source}: none of the calibrated frames ({', '.join(frames)}) "
+            f"is a link of the URDF (links: {_names(urdf.links)}); set each sensor's frame_id "
+            "in the manifest to its URDF link, or add the links (--add-missing)"
+        )
+    return SensorLinks(updates, {}, add, tuple(skipped), plan.notes, body_link)
 
 
 def plan_sensor_links(
@@ -848,66 +904,25 @@ def plan_sensor_links(
     add_missing: bool = False,
 ) -> SensorLinks:
     """Map calibrated frames (``{frame_id: T_body_frame}``; a camera's frame is its optical
-    frame, z forward) onto ``urdf``'s links.
+    frame, z forward) onto ``urdf``'s links by the frame contract
+    (:mod:`rigcal.io.results.frames`): a frame that is a link is updated there; a camera
+    (``kinds[frame] == "camera"``) whose link follows REP 103's body convention and has an
+    optical child gets the calibrated pose on that optical child (the camera link's joint
+    moves, the optical joint is kept), and a frame that *is* an optical child (joint rpy =
+    (-pi/2, 0, -pi/2)) keeps its optical joint and moves the joint above; a frame the URDF
+    lacks is skipped, or added (``add_missing``) on a fixed joint from ``body_link``."""
+    from rigcal.io.results.calibration_files import CalibrationTransforms
+    from rigcal.io.results.frames import plan_frames
 
-    * A frame that is a link (or a joint) of the URDF is updated there.
-    * A camera (``kinds[frame] == "camera"``) whose link follows REP 103's body convention and
-      has an optical child (a fixed joint with rpy = (-pi/2, 0, -pi/2)): the calibrated pose
-      is the optical child's, reached by changing the joint that carries the camera link; a
-      frame that *is* such an optical link keeps its optical joint and moves the joint above.
-    * A frame the URDF lacks is skipped, or with ``add_missing`` added as a new link on a
-      fixed joint from ``body_link``. If nothing at all matches, InputError (names both sides).
-    """
-    if body_link not in urdf.links:
+    if body_link not in urdf.links:  # named before any frame is resolved
         raise InputError(
             f"{urdf.source}: no link named '{body_link}', the frame the calibration is relative "
             f"to (links: {_names(urdf.links)}); set the reference sensor's frame_id in the "
             "manifest to its URDF link, or give --body-link"
         )
-    kinds = dict(kinds or {})
-    updates: dict[str, np.ndarray] = {}
-    joint_for: dict[str, str] = {}
-    add: dict[str, np.ndarray] = {}
-    skipped: list[str] = []
-    notes: list[str] = []
-    for frame, T in transforms.items():
-        if frame == body_link:
-            continue
-        if frame not in urdf.links and frame not in urdf.joints:
-            if add_missing:
-                add[frame] = as_rigid(T, f"{urdf.source}: T_{body_link}_{frame}")
-            else:
-                skipped.append(frame)
-            continue
-        if kinds.get(frame) == "camera" and frame in urdf.links:
-            carrier = urdf.joint_to(frame)
-            optical_children = [
-                j for j in urdf.joints.values() if j.parent == frame and _is_optical_joint(j)
-            ]
-            if carrier is not None and _is_optical_joint(carrier) and urdf.joint_to(carrier.parent):
-                joint_for[frame] = urdf.joint_to(carrier.parent).name  # type: ignore[union-attr]
-                notes.append(
-                    f"'{frame}' is an optical frame (REP 103): its optical joint "
-                    f"'{carrier.name}' is kept, joint '{joint_for[frame]}' moves"
-                )
-            elif len(optical_children) == 1 and carrier is not None:
-                child = optical_children[0].child
-                updates[child] = T
-                joint_for[child] = carrier.name
-                notes.append(
-                    f"camera frame '{frame}' follows the body convention (REP 103) and has the "
-                    f"optical frame '{child}': the calibrated optical pose is set there, "
-                    f"joint '{carrier.name}' moves"
-                )
-                continue
-        updates[frame] = T
-    if not updates and not add:
-        raise InputError(
-            f"{urdf.source}: none of the calibrated frames ({', '.join(map(str, transforms))}) "
-            f"is a link of the URDF (links: {_names(urdf.links)}); set each sensor's frame_id "
-            "in the manifest to its URDF link, or add the links (--add-missing)"
-        )
-    return SensorLinks(updates, joint_for, add, tuple(skipped), tuple(notes))
+    cal = CalibrationTransforms("relative", body_link, dict(transforms), urdf.source,
+                                dict(kinds or {}))
+    return sensor_links(urdf, plan_frames(cal, urdf), add_missing)
 
 
 def add_fixed_links(text: str, source: str, links: Mapping[str, Any], body_link: str) -> str:
@@ -1023,6 +1038,12 @@ def _read_urdf_file(path: Path) -> tuple[bytes, str]:
         ) from exc
 
 
+def read_urdf(path: str | os.PathLike[str]) -> Urdf:
+    """:func:`parse_urdf` of a file (UTF-8, a byte-order mark allowed; size limited)."""
+    p = Path(path)
+    return parse_urdf(_read_urdf_file(p)[1], str(p))
+
+
 def _same_file(a: Path, b: Path) -> bool:
     try:
         return a.exists() and b.exists() and os.path.samefile(a, b)
@@ -1049,6 +1070,7 @@ def write_urdf(
     *,
     kinds: Mapping[str, str] | None = None,
     missing: str = "error",
+    frame_plan: Any = None,
 ) -> WrittenUrdf:
     """Update ``in_path`` (see :func:`update_urdf_text`) and write the result atomically.
 
@@ -1062,7 +1084,9 @@ def write_urdf(
     ``"error"`` (refused), ``"skip"`` (left out, listed in ``skipped``) or ``"add"`` (a new link
     on a fixed joint from ``body_link``, listed in ``added``); with ``"skip"``/``"add"``,
     ``kinds`` (frame -> sensor kind) maps camera optical frames as :func:`plan_sensor_links`
-    describes.
+    describes. ``frame_plan`` (a :class:`~rigcal.io.results.frames.FramePlan` resolved in this
+    URDF) replaces ``updates``/``body_link``/``kinds``: what every other writer publishes is
+    what the URDF gets (:func:`sensor_links`).
     """
     if missing not in ("error", "skip", "add"):
         raise InputError(f"missing must be 'error', 'skip' or 'add', got {missing!r}")
@@ -1090,11 +1114,20 @@ def write_urdf(
     skipped: tuple[str, ...] = ()
     added: tuple[str, ...] = ()
     notes: tuple[str, ...] = ()
-    if missing == "error":
+    if missing == "error" and frame_plan is None:
         new_text = update_urdf_text(text, str(source), updates, body_link, joint_for)
     else:
-        plan = plan_sensor_links(parse_urdf(text, str(source)), updates, body_link, kinds,
-                                 add_missing=missing == "add")
+        if frame_plan is not None:
+            plan = sensor_links(parse_urdf(text, str(source)), frame_plan, missing == "add")
+            if missing == "error" and plan.skipped:
+                raise InputError(
+                    f"{source}: no link named {', '.join(repr(f) for f in plan.skipped)} (links: "
+                    f"{_names(parse_urdf(text, str(source)).links)})"
+                )
+        else:
+            plan = plan_sensor_links(parse_urdf(text, str(source)), updates, body_link, kinds,
+                                     add_missing=missing == "add")
+        body_link = plan.body_link or body_link
         new_text = add_fixed_links(text, str(source), plan.add, body_link)
         if plan.updates:
             new_text = update_urdf_text(new_text, str(source), plan.updates, body_link,

@@ -23,7 +23,7 @@ from __future__ import annotations
 import heapq
 import math
 from dataclasses import dataclass, field
-from typing import Iterator, Mapping, Sequence, Union
+from typing import Callable, Iterator, Mapping, Sequence, Union
 
 import numpy as np
 
@@ -429,19 +429,26 @@ def iter_recording(
     timeline: BoardTimeline,
     scene: Scene,
     rng: np.random.Generator | int,
+    progress: Callable[[int, int], None] | None = None,
 ) -> Iterator[tuple[Frame, np.ndarray, int]]:
     """Yield ``(frame, T_rig_board, placement)`` in time order, one frame at a time (for
     recordings too large to hold in memory). ``scene`` gives the wall and materials; its board
-    pose is replaced by the timeline's. Draws one seed per sensor from ``rng`` first."""
+    pose is replaced by the timeline's. Draws one seed per sensor from ``rng`` first.
+    ``progress(done, total)`` is called before the first frame and after each."""
     sensors = _check_sensors(sensors)
     gen = _as_rng(rng)
     streams = [np.random.default_rng(int(s)) for s in gen.integers(0, 2**63 - 1, len(sensors))]
     times = [frame_times_ns(s, timeline.start_ns, timeline.end_ns) for s in sensors]
+    total = sum(len(ts) for ts in times)
     merged = heapq.merge(*[[(int(t), i) for t in ts] for i, ts in enumerate(times)])
-    for t_ns, i in merged:
+    if progress:
+        progress(0, total)
+    for done, (t_ns, i) in enumerate(merged, start=1):
         T_board = timeline.pose_at(t_ns)
         frame = _make_frame(sensors[i], scene.with_board(T_board), streams[i], t_ns)
         yield frame, T_board, timeline.placement_at(t_ns)
+        if progress:
+            progress(done, total)
 
 
 def simulate_recording(
@@ -456,11 +463,13 @@ def simulate_recording(
     start_ns: int = 0,
     scene: Scene | None = None,
     board: BoardGeometry = BoardGeometry(),
+    progress: Callable[[int, int], None] | None = None,
 ) -> SimRecording:
     """Simulate every sensor while the board dwells at each of ``placements`` (K, 4, 4)
     ``T_rig_board`` in turn (see the module docstring). ``scene``: wall and materials (default
-    :func:`scene_for_placements`). Returns a :class:`SimRecording` holding all frames - for the
-    full-size preset prefer :func:`iter_recording`."""
+    :func:`scene_for_placements`); ``progress(frames done, frames in all)`` after each frame.
+    Returns a :class:`SimRecording` holding all frames - for the full-size preset prefer
+    :func:`iter_recording`."""
     sensors = _check_sensors(sensors)
     gen = _as_rng(rng)
     timeline = make_timeline(
@@ -472,7 +481,7 @@ def simulate_recording(
     elif not isinstance(scene, Scene):
         raise InputError(f"simulate_recording: scene must be a Scene, got {type(scene).__name__}")
     frames, poses, placement = [], [], []
-    for frame, T_board, k in iter_recording(sensors, timeline, scene, gen):
+    for frame, T_board, k in iter_recording(sensors, timeline, scene, gen, progress):
         frames.append(frame)
         poses.append(T_board)
         placement.append(k)

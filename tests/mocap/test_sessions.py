@@ -46,7 +46,7 @@ def _edit(path: Path, edit) -> Path:
 
 @pytest.mark.slow
 def test_a_camera_seen_in_one_hold_is_refused_naming_the_holds_it_needs(tmp_path, capsys):
-    scene = write_mocap_scene(tmp_path / "s", two_sensor_rig(), seed=3, holds=(4, 1), timing=QUICK)
+    scene = write_mocap_scene(tmp_path / "s", two_sensor_rig(), seed=3, holds=(4, 1), timing=QUICK, exclusive=False)
     r = run_mocap(load_mocap_config(scene.config_path))
     assert set(r.result.sensors) == {"lidar1"}  # the lidar is still calibrated
     why = r.not_calibrated["camera1"]
@@ -54,8 +54,8 @@ def test_a_camera_seen_in_one_hold_is_refused_naming_the_holds_it_needs(tmp_path
     assert _nees(r, scene, "lidar1") < CHI2_95_6
     # the CLI writes the lidar and exits 4 (partial), never 0
     code = cli(["mocap", str(scene.config_path), "--out", str(tmp_path / "out")])
-    err = capsys.readouterr().err
-    assert code == 4 and "camera1" in err and "2 more" in err
+    shown = "".join(capsys.readouterr())  # the summary (stdout) and the warnings (stderr)
+    assert code == 4 and "camera1" in shown and "2 more" in shown
     text = (tmp_path / "out" / "calibration.yaml").read_text()
     assert "camera1" in yaml.safe_load(text)["not_calibrated"]
 
@@ -64,7 +64,7 @@ def test_a_camera_seen_in_one_hold_is_refused_naming_the_holds_it_needs(tmp_path
 def test_mcs_noise_per_capture_is_taken_from_the_streams(tmp_path):
     # a Vicon's noise on every sample of the robot and the target, a 15 mm range noise: every
     # sensor near its truth and inside its reported region, the per-capture error estimated
-    scene = write_mocap_scene(tmp_path / "s", two_sensor_rig(), seed=5, holds=4, timing=QUICK,
+    scene = write_mocap_scene(tmp_path / "s", two_sensor_rig(), seed=5, holds=4, timing=QUICK, exclusive=False,
                               mcs_noise=(0.00015, 0.0003))
     r = run_mocap(load_mocap_config(scene.config_path))
     for name in ("lidar1", "camera1"):
@@ -81,24 +81,34 @@ def test_mcs_noise_per_capture_is_taken_from_the_streams(tmp_path):
 
 @pytest.mark.slow
 def test_a_clock_offset_is_recovered_when_the_robot_turns(tmp_path):
-    # the robot drives and turns through the holds; the camera stamps its frames 60 ms late,
-    # the lidar 25 ms: both recovered to 2 ms (the MCS is exact here)
-    path = RobotPath(velocity_mps=(0.02, 0.0, 0.0), yaw_rate_dps=1.5)
+    # the robot creeps and sways about its heading through the holds (a turn rate that
+    # changes: under a constant twist an offset is the same as a fixed change of the sensor's
+    # pose); the camera stamps its frames 60 ms late, the lidar 25 ms: each recovered to 2 ms,
+    # or flagged when it matters, or (not determined, hardly matters) inside the covariance
+    path = RobotPath(velocity_mps=(0.02, 0.0, 0.0), sway_deg=6.0, sway_period_s=5.0)
+    timing = SceneTiming(hold_s=1.5, move_s=0.6, lead_s=0.4, gap_hold=None)
     scene = write_mocap_scene(tmp_path / "s", two_sensor_rig(lidar_range_sigma_m=0.005), seed=4,
-                              holds=5, timing=QUICK, robot=path, robot_still_in_holds=False,
+                              holds=5, timing=timing, exclusive=False, robot=path, robot_still_in_holds=False,
                               stamp_delay_s={"camera1": 0.060, "lidar1": 0.025})
-    r = run_mocap(load_mocap_config(scene.config_path))
+
+    def faster(doc):  # the targets sweep past at up to 0.3 m/s, 10 deg/s: still used
+        doc["extraction"]["max_linear_mps"] = 0.3
+        doc["extraction"]["max_angular_dps"] = 10.0
+    r = run_mocap(load_mocap_config(_edit(scene.config_path, faster)))
     for name, delay in (("camera1", 0.060), ("lidar1", 0.025)):
         f = r.fit.sensors[name]
         if f.time_offset_status == "determined":
             assert abs(f.time_offset_s - delay) <= 0.002, (name, f.time_offset_s)
+        elif f.time_offset_status == "undetermined":
+            assert r.result.flagged, name
         else:
-            assert r.result.flagged, (name, f.time_offset_status)
-    cam = r.fit.sensors["camera1"]
-    assert cam.time_offset_status == "determined"  # this session does tell it
-    assert _nees(r, scene, "camera1") < CHI2_95_6
+            assert f.time_offset_status == "irrelevant", (name, f.time_offset_status)
+            assert abs(f.time_offset_s - delay) <= 3 * f.time_offset_std_s, (name, f.time_offset_s)
+        assert _nees(r, scene, name) < CHI2_95_6, name
+    lidar = r.fit.sensors["lidar1"]
+    assert lidar.time_offset_status == "determined"  # this session does tell it (25.2 +- 0.6 ms)
     check = {c.name: c for c in r.result.verdict.checks}["time_offset"]
-    assert "camera1 +60" in check.detail or "camera1 +59" in check.detail or "camera1 +61" in check.detail
+    assert any(f"lidar1 +{v}." in check.detail for v in (23, 24, 25, 26, 27)), check.detail
 
 
 @pytest.mark.slow
@@ -107,12 +117,12 @@ def test_a_clock_offset_that_cannot_be_told_from_the_pose_is_flagged(tmp_path, c
     # every frame's target by the same 5 cm/s x offset, which the sensor's translation absorbs.
     # The 40 ms delay cannot be estimated and matters (2 mm): flagged, not written
     path = RobotPath(velocity_mps=(0.05, 0.0, 0.0))
-    scene = write_mocap_scene(tmp_path / "s", two_sensor_rig(), seed=6, holds=4, timing=QUICK,
+    scene = write_mocap_scene(tmp_path / "s", two_sensor_rig(), seed=6, holds=4, timing=QUICK, exclusive=False,
                               robot=path, robot_still_in_holds=False, mcs_noise=(0.00015, 0.0003),
                               stamp_delay_s={"camera1": 0.040, "lidar1": 0.040})
     code = cli(["mocap", str(scene.config_path), "--out", str(tmp_path / "out")])
-    err = capsys.readouterr().err
-    assert code == 3 and "time_offset" in err and "could not be told from the pose" in err
+    shown = "".join(capsys.readouterr())  # the summary (stdout) and the warnings (stderr)
+    assert code == 3 and "time_offset" in shown and "could not be told from the pose" in shown
     assert not (tmp_path / "out").exists()
 
 
@@ -120,22 +130,25 @@ def test_a_clock_offset_that_cannot_be_told_from_the_pose_is_flagged(tmp_path, c
 def test_dropout_bursts_are_interpolated_over(tmp_path):
     # 10 % of the robot's and 15 % of the target's MCS samples dropped, and a 60 ms occlusion
     # in every hold: bridged (25 sample periods), the lidar keeps its holds
-    scene = write_mocap_scene(tmp_path / "s", two_sensor_rig(), seed=8, holds=4, timing=QUICK,
+    scene = write_mocap_scene(tmp_path / "s", two_sensor_rig(), seed=8, holds=4, timing=QUICK, exclusive=False,
                               dropout_fraction=(0.10, 0.15), glitch_s=0.06)
     r = run_mocap(load_mocap_config(scene.config_path))
     assert set(r.result.sensors) == {"lidar1", "camera1"}
     counts = r.counts
-    assert counts["lidar1"].get("no_pose_data", 0) == 0 and counts["lidar1"]["kept"] >= 8
+    # only the frames whose +-0.25 s motion window reaches past the session's ends lack poses
+    t = scene.frames["lidar1"]
+    edge = int(np.sum((t - scene.t0_ns < 250_000_000) | (scene.end_ns - t < 250_000_000)))
+    assert counts["lidar1"].get("no_pose_data", 0) == edge and counts["lidar1"]["kept"] >= 8
     # a burst longer than max_dropout_s is a gap again
     def short(doc):
         doc["mocap"]["max_dropout_s"] = 0.03
     r2 = run_mocap(load_mocap_config(_edit(scene.config_path, short)))
-    assert r2.counts["lidar1"].get("no_pose_data", 0) > 0
+    assert r2.counts["lidar1"].get("no_pose_data", 0) > edge
 
 
 @pytest.mark.slow
 def test_from_a_guess_30_cm_and_30_deg_off_every_sensor_reaches_the_good_answer(tmp_path):
-    scene = write_mocap_scene(tmp_path / "s", two_sensor_rig(), seed=7, holds=4, timing=QUICK)
+    scene = write_mocap_scene(tmp_path / "s", two_sensor_rig(), seed=7, holds=4, timing=QUICK, exclusive=False)
     good = run_mocap(load_mocap_config(scene.config_path))
     rng = np.random.default_rng(2300)
     far = {}
@@ -166,7 +179,7 @@ def test_the_residual_has_one_definition_in_every_output(tmp_path):
 
     from rigcal.mocap.pipeline import summary_rows, write_mocap_outputs
 
-    scene = write_mocap_scene(tmp_path / "s", two_sensor_rig(), seed=1, holds=3, timing=QUICK)
+    scene = write_mocap_scene(tmp_path / "s", two_sensor_rig(), seed=1, holds=3, timing=QUICK, exclusive=False)
     r = run_mocap(load_mocap_config(scene.config_path))
     write_mocap_outputs(r, tmp_path / "out", report=False)
     rows = {row[0]: row for row in summary_rows(r)}

@@ -942,13 +942,15 @@ def _check_holds(sensors, observations, holds, options: MocapOptions) -> None:
             sensor=s.name)
 
 
-def _matches(prob: Problem, sol, sensors, observations, scale) -> dict[str, dict[str, tuple[int, int]]]:
+def _matches(prob: Problem, sol, sensors, observations, whitened) -> dict[str, dict[str, tuple[int, int]]]:
+    """Per sensor and target, (measurements within 3 configured sigma, measurements);
+    ``whitened[sensor]``: the sigma ``sol``'s residuals were whitened by, over the configured."""
     out: dict[str, dict[str, list[int]]] = {s.name: {} for s in sensors}
     for b, raw in zip(prob.observations, sol.residuals):
         if not b.label.startswith(ROBOT):
             continue
-        lim = 3.0 * np.sqrt(b.dim)  # residuals whitened by the configured sigma
-        e = np.linalg.norm(raw, axis=1)
+        lim = 3.0 * np.sqrt(b.dim)
+        e = np.linalg.norm(raw, axis=1) * whitened.get(b.sensor, 1.0)
         for i, ok in zip(b.board, e <= lim):
             t = observations[int(i)].target
             c = out[b.sensor].setdefault(t, [0, 0])
@@ -1102,6 +1104,9 @@ def calibrate_mocap_fit(
                     break
     coupled = options.target_pose_sigma is not None or boards is not None
     moving = {n: True for n in offsets}
+    # residuals of ``sol`` are whitened by the configured sigma times this (a reweighted solve
+    # whitens by the estimated noise): _matches judges against the configured sigma
+    whitened = {s.name: 1.0 for s in sensors}
     with single_threaded():
         stats, joint = _statistics(prob, sol, sensors, shifted, holds, options, moving)
         if coupled or any(abs(np.log(st.s2)) > np.log(4.0) for st in stats.values()):
@@ -1114,6 +1119,7 @@ def calibrate_mocap_fit(
             if sol2.converged:
                 sol = sol2
                 poses = {s.name: sol.poses[s.name] for s in sensors}
+                whitened = factor
             stats, joint = _statistics(prob, sol, sensors, shifted, holds, options, moving)
             for n, st in stats.items():
                 st.s2 *= factor[n] ** 2
@@ -1131,8 +1137,7 @@ def calibrate_mocap_fit(
                     f"the image under the estimate: its pose is not determined by its measurements",
                     sensor=s.name)
     estimates, rmse, reproj, fits = {}, {}, {}, {}
-    scale = {n: st.s2 for n, st in stats.items()}
-    matches = _matches(prob, sol, sensors, shifted, scale)
+    matches = _matches(prob, sol, sensors, shifted, whitened)
     for s in sensors:
         st = stats[s.name]
         cov = joint([s.name])

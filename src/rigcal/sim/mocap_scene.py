@@ -176,6 +176,11 @@ class RobotPath:
     yaw_deg: float = 30.0
     #: the robot turns at this rate [deg/s] (0: a constant heading)
     yaw_rate_dps: float = 0.0
+    #: and sways about its heading by this much [deg], once every ``sway_period_s`` [s] (a
+    #: turn rate that changes: a constant twist makes a clock offset the same as a fixed
+    #: change of every sensor's pose, so only a changing one tells them apart)
+    sway_deg: float = 0.0
+    sway_period_s: float = 8.0
 
     def __post_init__(self) -> None:
         for key in ("start_xyz_m", "velocity_mps"):
@@ -184,13 +189,16 @@ class RobotPath:
                 raise InputError(f"RobotPath.{key}: expected three finite numbers, got {getattr(self, key)!r}")
             v.setflags(write=False)
             object.__setattr__(self, key, v)
-        for key in ("yaw_deg", "yaw_rate_dps"):
+        for key in ("yaw_deg", "yaw_rate_dps", "sway_deg"):
             if not math.isfinite(getattr(self, key)):
                 raise InputError(f"RobotPath.{key}: expected a finite number, got {getattr(self, key)!r}")
+        if not (math.isfinite(self.sway_period_s) and self.sway_period_s > 0):
+            raise InputError(f"RobotPath.sway_period_s: expected a duration > 0 [s], got {self.sway_period_s!r}")
 
     def at(self, t_s: float) -> np.ndarray:
         """``T_map_robot`` (4, 4) at ``t_s`` seconds into the session."""
-        R = matrix_from_rpy(np.radians([0.0, 0.0, self.yaw_deg + self.yaw_rate_dps * t_s]))
+        sway = self.sway_deg * math.sin(2 * math.pi * t_s / self.sway_period_s)
+        R = matrix_from_rpy(np.radians([0.0, 0.0, self.yaw_deg + self.yaw_rate_dps * t_s + sway]))
         return from_rt(R, self.start_xyz_m + self.velocity_mps * t_s)
 
 

@@ -10,6 +10,7 @@ short (holds of 1 s) to keep the suite fast.
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -196,3 +197,72 @@ def test_the_residual_has_one_definition_in_every_output(tmp_path):
         sensor = next(s for s in r.fit.sensors.values() if s.name == name)
         assert value != pytest.approx(sensor.sigma_nominal)  # not the configured sigma
     assert doc["num_boards"] == 0
+
+
+def _pose_rows(times_ns, T_of):
+    from rigcal.mocap import matrix_to_quat_xyzw
+
+    lines = ["t,x,y,z,qx,qy,qz,qw"]
+    for t in times_ns:
+        T = T_of(int(t))
+        lines.append(",".join(str(v) for v in (int(t), *T[:3, 3], *matrix_to_quat_xyzw(T[:3, :3]))))
+    return lines
+
+
+@pytest.mark.slow
+def test_a_target_never_seen_is_reported_and_a_corrupt_pose_row_is_an_input_error(tmp_path, capsys):
+    # a second target configured whose MCS body stands 40 m away the whole session: the
+    # sensors are calibrated from the diamond, the unseen one reported (exit 0, not 1)
+    scene = write_mocap_scene(tmp_path / "s", two_sensor_rig(), seed=2, holds=3, timing=QUICK, exclusive=False)
+    times = range(scene.t0_ns, scene.end_ns + 1, 10_000_000)
+    far = np.eye(4)
+    far[:3, 3] = (40.0, 0.0, 1.0)
+    (scene.folder / "far.csv").write_text("\n".join(_pose_rows(times, lambda t: far)) + "\n")
+
+    def add(doc):
+        doc["mocap"]["targets"]["spare"] = {"csv": "far.csv", "time_unit": "ns",
+                                            "definition": scene.target_path.name}
+    _edit(scene.config_path, add)
+    code = cli(["mocap", str(scene.config_path), "--out", str(tmp_path / "out")])
+    shown = "".join(capsys.readouterr())
+    assert code == 0, shown
+    assert "spare" in shown and "never" in shown
+    doc = yaml.safe_load((tmp_path / "out" / "calibration.yaml").read_text())
+    assert {"lidar1", "camera1"} <= set(doc["sensors"])
+    # the robot's stream as a CSV with one row whose x is nan (the rest of the row present):
+    # an input error naming the file and the line, nothing written
+    rows = _pose_rows(times, scene.T_map_robot_at)
+    cols = rows[200].split(",")
+    cols[1] = "nan"
+    rows[200] = ",".join(cols)
+    (scene.folder / "robot.csv").write_text("\n".join(rows) + "\n")
+
+    def robot_csv(doc):
+        doc["mocap"]["robot"] = {"csv": "robot.csv", "time_unit": "ns"}
+    _edit(scene.config_path, robot_csv)
+    code = cli(["mocap", str(scene.config_path), "--out", str(tmp_path / "out2")])
+    err = capsys.readouterr().err
+    assert code == 1 and "Traceback" not in err
+    assert re.search(r"rigcal: error: .*robot\.csv: line 201: column x: expected a finite number, got 'nan'", err), err
+    assert not (tmp_path / "out2").exists()
+
+
+@pytest.mark.slow
+def test_captures_stamped_1_ns_apart_share_no_target_pose_by_accident(tmp_path):
+    # the camera's frames stamped 1 ns after the lidar's (its clock 125 ms behind; the robot
+    # and target stand still in the holds, so that does not move them), with target poses
+    # estimated under the MCS's prior: observations 1 ns apart at different places are not
+    # one capture - both sensors land where they do without the option
+    scene = write_mocap_scene(tmp_path / "s", two_sensor_rig(), seed=9, holds=4, timing=QUICK, exclusive=False,
+                              stamp_delay_s={"camera1": -0.125 + 1e-9})
+    assert np.min(np.abs(scene.frames["camera1"][:, None] - 125_000_000 + 1
+                         - scene.frames["lidar1"][None, :])) == 1  # 1 ns apart
+    plain = run_mocap(load_mocap_config(scene.config_path))
+
+    def tied(doc):
+        doc["options"]["target_pose_sigma"] = [0.001, 0.001]
+    r = run_mocap(load_mocap_config(_edit(scene.config_path, tied)))
+    for name in ("lidar1", "camera1"):
+        t, a = _error(r.final[name], scene.truth[name])
+        t0, _ = _error(plain.final[name], scene.truth[name])
+        assert t < max(3 * t0, 3.0) and a < 0.3, (name, t, a, t0)  # was metres off

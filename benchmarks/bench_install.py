@@ -24,6 +24,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from timing import cpu_model
+
 ROOT = Path(__file__).resolve().parents[1]
 EXTRAS = ("images", "plots", "fleet", "mcap")
 MB = 1024 * 1024
@@ -53,14 +55,7 @@ def pip(venv: Path, *args: str) -> float:
 
 
 def machine() -> str:
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
+    cpu = cpu_model()
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     return (f"{platform.system()} {platform.release()}, python {platform.python_version()}, {os.cpu_count()} cpu(s) "
             f"{cpu}, load average {load:.1f}, {time.strftime('%Y-%m-%d')}")

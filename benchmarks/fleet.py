@@ -26,6 +26,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from timing import cpu_model
+
 THRESHOLDS = (0.001, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2)
 
 
@@ -50,15 +52,7 @@ def _pct(x: float) -> str:
 
 
 def _machine() -> str:
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return f"{cpu}, {os.cpu_count()} cores, {platform.system()}, python {platform.python_version()}"
+    return f"{cpu_model()}, {os.cpu_count()} cores, {platform.system()}, python {platform.python_version()}"
 
 
 def fleet_cli_time(vehicles, seed: int, out_root: Path, moved_fraction: float) -> tuple[float, int, dict]:

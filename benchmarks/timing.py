@@ -9,6 +9,20 @@ from pathlib import Path
 from typing import Callable, Sequence
 
 
+def cpu_model() -> str:
+    """The CPU's model name (/proc/cpuinfo), else what ``platform`` knows: for the machine line
+    every benchmark prints."""
+    import platform
+
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
 def median_ms(fn: Callable[[], object], runs: int) -> float:
     """Median wall time of ``fn()`` over ``runs`` calls after one warm-up call [ms]."""
     fn()

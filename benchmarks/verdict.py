@@ -28,20 +28,13 @@ from dataclasses import asdict
 
 from threadpoolctl import threadpool_limits
 
+from timing import cpu_model
+
 from rigcal.study.verdict import FAULT_NAMES, run_rig, summarise
 
 
 def machine() -> str:
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    cpu = line.split(":", 1)[1].strip()
-                    break
-    except OSError:
-        pass
-    return f"{cpu}, nproc {os.cpu_count()}, python {platform.python_version()}"
+    return f"{cpu_model()}, nproc {os.cpu_count()}, python {platform.python_version()}"
 
 
 def main() -> int:

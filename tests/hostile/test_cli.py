@@ -377,6 +377,45 @@ def test_signal_after_publishing_still_exits_with_its_line(tmp_path, sig, code, 
     assert (tmp_path / "out" / "calibration.yaml").read_text() == "x"  # published, complete
 
 
+_SIGNAL_BEFORE_EXIT_TAKES_OVER = """
+import os, signal, sys, time
+from rigcal.cli import main, report
+from rigcal.io.atomic import atomic_write_text, staged_folder
+
+def run(args, console):
+    with staged_folder("{out}") as stage:
+        atomic_write_text(stage / "calibration.yaml", "x")
+    return 0
+
+real_exit_now, calls = main._exit_now, []
+
+def exit_now(code):
+    calls.append(code)
+    if len(calls) == 1:  # the signal lands before the exit path has taken the signals over
+        os.kill(os.getpid(), signal.{sig})
+        time.sleep(0.5)
+    real_exit_now(code)
+
+report.run = run
+main._exit_now = exit_now
+sys.argv = ["rigcal", "report", "{out}"]
+main.entry()
+"""
+
+
+@pytest.mark.parametrize("sig, code, word", SIGNALS)
+def test_signal_between_the_run_and_its_exit_path_exits_with_its_line(tmp_path, sig, code, word):
+    """A signal that lands after the run returned but before the exit path replaced the
+    handlers (CI once: SIGTERM 20 ms after a calibration was published printed a traceback from
+    the handler, exit 1) ends the run with the one line and 130/143; the output stays."""
+    script = _SIGNAL_BEFORE_EXIT_TAKES_OVER.format(out=tmp_path / "out", sig=sig)
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, timeout=60)
+    rc, err = done.returncode, done.stderr.decode()
+    assert rc == code, err
+    assert f"rigcal: {word}" in err and "Traceback" not in err, err
+    assert (tmp_path / "out" / "calibration.yaml").read_text() == "x"
+
+
 @pytest.mark.slow  # five calibrations
 def test_sigterm_just_after_a_calibration_is_published(tmp_path, dataset_dir):
     """A real ``rigcal calibrate``, SIGTERM sent at several moments after its output folder

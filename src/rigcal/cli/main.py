@@ -179,7 +179,14 @@ def entry() -> None:
         code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
         if not isinstance(exc.code, (int, type(None))):
             sys.stderr.write(f"{exc.code}\n")
-    _exit_now(code)
+    while True:
+        try:
+            _exit_now(code)  # does not return
+        except (KeyboardInterrupt, Terminated) as exc:
+            # The signal landed after the run ended but before _exit_now took the signals over
+            # (seen in CI: a SIGTERM 20 ms after the output was published printed a traceback).
+            # The output is complete; the run ends with the signal's line and code.
+            code = _interrupted(type(exc))
 
 
 def _exit_now(code: int) -> None:

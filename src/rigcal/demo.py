@@ -328,6 +328,8 @@ def _rss(std: Mapping[str, float], keys: tuple[str, ...]) -> float:
 
 #: fewest holds of the flat target per sensor that determine the demo lidar's pose
 MIN_MOCAP_DEMO_HOLDS = 3
+#: the demo's MCS noise per sample of each body (translation [m], rotation [rad]): a Vicon's
+DEMO_MCS_NOISE = (0.00015, 0.0003)
 
 
 def mocap_demo(
@@ -361,7 +363,8 @@ def mocap_demo(
             return None
         return lambda done, total: progress(name, done, total)
 
-    scene = write_mocap_scene(out / "scene", seed=seed, holds=holds, progress=stage("simulating the session"))
+    scene = write_mocap_scene(out / "scene", seed=seed, holds=holds, progress=stage("simulating the session"),
+                              mcs_noise=DEMO_MCS_NOISE)
     run = run_mocap(load_mocap_config(scene.config_path), progress=stage("extracting targets"))
     if run.not_calibrated:  # the simulated session shows every sensor: a partial run is a failure
         raise ConvergenceError("mocap demo: " + "; ".join(
@@ -393,8 +396,10 @@ def mocap_demo(
             + ", ".join(f"{o.sensor} ({o.model} {o.kind})" for o in outcomes)
             + f" with no shared view; a diamond held {holds} times in each sensor's view, "
             f"{span_s:.1f} s with frames at {scene.timing.sensor_hz} Hz and Vicon poses at "
-            f"{scene.timing.mcs_hz} Hz (with a dropout); initial calibration off by up to 3 cm and "
-            f"5 deg per axis"
+            f"{scene.timing.mcs_hz} Hz ({1000 * DEMO_MCS_NOISE[0]:.2f} mm / "
+            f"{1000 * DEMO_MCS_NOISE[1]:.1f} mrad noise per sample, a dropout); lidar range noise "
+            f"{1000 * scene.sensors[0].model.range_sigma_m:.0f} mm; initial calibration off by up "
+            f"to 3 cm and 5 deg per axis"
         ),
         scene=scene,
         run=run,

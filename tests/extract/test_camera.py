@@ -189,15 +189,20 @@ def test_checkerboard_guided_by_a_perturbed_pose(vicon):
 
 
 @needs_vicon
-def test_unguided_detection_cannot_resolve_the_half_turn(vicon):
-    """Without the mocap prediction the whole image is searched and OpenCV's order is kept;
-    for this board it is the reverse of the keypoints', so PnP lands 180 deg off - the reason
-    the extractor orders corners with the expected pose."""
+def test_unguided_detection_reports_the_half_turn_it_cannot_resolve(vicon):
+    """Without the mocap prediction the whole image is searched; which corner is which cannot
+    be told (OpenCV's order is the reverse of the keypoints' for this board, and PnP of it lands
+    180 deg off), so no correspondences and no pose are claimed - the ambiguity is reported,
+    and ordering with the expected pose resolves it."""
     m = extract_checkerboard(vicon["dia"], vicon["camera"], vicon["pattern"], vicon["kp_cam"])
     assert isinstance(m, Measurement), m
-    assert m.quality["orientation_guided"] == 0.0
-    _, dr = pose_error(m.T_sensor_target, vicon["T_true"])
-    assert dr > 170.0
+    assert m.quality["orientation_guided"] == 0.0 and m.quality["orientation_ambiguous"] == 1.0
+    assert m.keypoint_index is None and m.T_sensor_target is None
+    expected, _ = vicon["camera"].project(transform_points(vicon["T_true"], vicon["kp_cam"]))
+    ordered, sym, err, runner = order_grid(m.keypoints, vicon["pattern"], expected)
+    assert sym != "identity" and err < 0.2 * runner  # resolved by the prediction
+    fit = solve_pnp(vicon["camera"], vicon["kp_cam"], ordered, None)
+    assert pose_error(fit.T_camera_target, vicon["T_true"])[1] < 1.0
 
 
 @needs_vicon

@@ -108,6 +108,27 @@ def test_motion_check_rejects_a_moving_target():
     assert not none.still and none.reason == "no_pose_data"
 
 
+def test_motion_check_sees_through_the_mcs_noise_per_sample():
+    # a Vicon's noise on the robot and the target (0.15 mm / 0.3 mrad each, 100 Hz) seen 2.5 m
+    # away: sample to sample it is 0.1 m/s and 6 deg/s; over the 0.1 s baseline the still
+    # target is still, and the push is still seen
+    from rigcal.geometry.se3 import se3_exp
+
+    rng = np.random.default_rng(3)
+    speeds = [0.0] * 100 + [0.2] * 10 + [0.0] * 100
+    t, T = track(speeds, [0.0] * len(speeds))
+    noise = [se3_exp(np.r_[rng.normal(0, 0.0003 * 2 ** 0.5, 3), rng.normal(0, 0.00015 * 2 ** 0.5, 3)])
+             for _ in T]
+    lever = [from_rt(so3_exp(rng.normal(0, 0.0003, 3)), [0, 0, 0]) for _ in T]  # the robot's turn
+    Tn = np.stack([L @ A @ N for L, A, N in zip(lever, T, noise)])
+    raw = relative_speeds(t, Tn)
+    assert raw[1].max() > 0.1 and raw[2].max() > math.radians(5.0)  # what the old check saw
+    still = motion_check(500_000_000, t, Tn, window_s=0.5, max_linear_mps=0.1, max_angular_radps=math.radians(5))
+    assert still.still, still.detail
+    assert not motion_check(1_050_000_000, t, Tn, window_s=0.5, max_linear_mps=0.1,
+                            max_angular_radps=math.radians(5)).still
+
+
 def test_motion_check_validates_the_track():
     t, T = track([0.0] * 10, [0.0] * 10)
     with pytest.raises(InputError, match="strictly increasing"):

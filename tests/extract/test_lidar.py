@@ -333,3 +333,35 @@ def test_a_fit_that_explains_part_of_the_cluster_is_refused(sim, rays, diamond_t
     r = extract_lidar_target(pts, T, diamond_template, min_on_template_fraction=0.0, **kw)
     assert isinstance(r, Measurement)
     assert r.quality["on_template_points"] < 0.6 * r.quality["cluster_points"]
+
+
+# ---------------------------------------------------------------------------- global search
+@pytest.mark.parametrize("seed", range(3))
+def test_a_guess_30_deg_off_is_found_by_the_global_search(sim, rays, diamond_template, seed):
+    # the prediction turned 30 deg and shifted 30 cm: one ICP from it is refused (it may not
+    # turn that far), the multi-start search over the template's orientation finds the plate
+    from rigcal.geometry.se3 import se3_exp
+
+    T, pts, which, _ = diamond_scene(sim, rays, seed, distractor=False)
+    rng = np.random.default_rng(50 + seed)
+    d = rng.normal(size=6)
+    d[:3] *= math.radians(30.0) / np.linalg.norm(d[:3])
+    d[3:] *= 0.30 / np.linalg.norm(d[3:])
+    T_far = T @ se3_exp(d)
+    wide = PoseUncertainty(0.08, math.radians(12.0), 3.0)
+    one = extract_lidar_target(pts, T_far, diamond_template, keypoints_target=sim.DIAMOND_CORNERS,
+                               lidar=VLP16, uncertainty=wide, min_fraction_in_view=0.0)
+    many = extract_lidar_target(pts, T_far, diamond_template, keypoints_target=sim.DIAMOND_CORNERS,
+                                lidar=VLP16, uncertainty=wide, min_fraction_in_view=0.0, multi_start=True)
+    assert isinstance(many, Measurement), many
+    # the plate's surface is found (a square plate is the same turned a quarter: the corners may
+    # be any of its four symmetric labellings; the closest to the guess is kept)
+    on = many.extras["on_template"]
+    assert np.mean(on) > 0.9
+    normal_true = T[:3, 2]
+    normal = many.T_sensor_target[:3, 2]
+    assert abs(float(normal @ normal_true)) > math.cos(math.radians(3.0))
+    centre = lambda M: sim.transform_points(M, sim.DIAMOND_CORNERS).mean(axis=0)  # noqa: E731
+    assert np.linalg.norm(centre(many.T_sensor_target) - centre(T)) < 0.01
+    if isinstance(one, Measurement):  # the single start, if it fitted at all, is worse
+        assert sim.pose_error(one.T_sensor_target, T)[1] >= sim.pose_error(many.T_sensor_target, T)[1] - 1e-6

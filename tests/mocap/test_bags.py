@@ -135,7 +135,7 @@ def test_vicon_style_pose_topics(kit, tmp_path, fmt):
     assert sources.tf_parents == {} and sources.moving_frames == ()
 
 
-def test_occluded_samples_are_dropped_and_leave_a_gap(kit, tmp_path, caplog):
+def test_occluded_samples_are_dropped_and_interpolated_over(kit, tmp_path, caplog):
     store = kit.store_for("rosbag2-sqlite3")
     t = _times(100.0, 1.0)
     T = kit.trajectory((t - T0) / NS)
@@ -156,10 +156,16 @@ def test_occluded_samples_are_dropped_and_leave_a_gap(kit, tmp_path, caplog):
         s = read_pose_topics(path, ["/vicon/b/b"])["vicon/b/b"]
     assert len(s) == len(t) - 10
     assert "dropped 10 samples" in caplog.text
-    _, valid = interpolate(s, t[38:53])
+    assert s.dropout_t_ns.tolist() == [int(x) for x in t[40:50]]
+    # a burst of 10 dropped samples (0.11 s) is interpolated over by default (25 periods)...
+    T_i, valid = interpolate(s, t[38:53])
+    assert valid.all()
+    np.testing.assert_allclose(T_i[:, :3, 3], T[38:53, :3, 3], atol=2e-3)  # a smooth path
+    # ... up to max_dropout_s; a longer burst is a gap, named as a dropout
+    _, valid = interpolate(s, t[38:53], max_dropout_s=0.1)
     assert valid.tolist() == [True, True] + [False] * 10 + [True] * 3
-    with pytest.raises(InputError, match=r"falls in a gap of 0\.110 s"):
-        s.at(int(t[45]))
+    with pytest.raises(InputError, match=r"falls in a dropout of 10 samples, a gap of 0\.110 s.*max_dropout_s = 0\.1 s"):
+        s.at(int(t[45]), max_dropout_s=0.1)
 
 
 def test_duplicate_stamps_and_receive_time_fallback(kit, tmp_path):

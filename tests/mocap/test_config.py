@@ -268,3 +268,16 @@ def test_hold_sigma_floor_is_read_and_checked(tmp_path):
     assert _options({"hold_sigma_floor": [0.0, 0.001]}, "m.yaml").hold_sigma_floor == (0.0, 0.001)
     with pytest.raises(InputError, match="hold_sigma_floor"):
         _options({"hold_sigma_floor": [-1.0, 0.001]}, "m.yaml")
+
+
+def test_dropouts_holds_and_the_clock_offset_are_configured(folder):
+    text = CONFIG.replace("max_gap_s: 0.04", "max_gap_s: 0.04\n  max_dropout_s: 0.3").replace(
+        "loss: huber", "loss: huber, min_holds: 4, time_offset_sigma_s: 0.02")
+    cfg = _parse(folder, text)
+    assert cfg.max_dropout_s == 0.3
+    assert cfg.options.min_holds == 4 and cfg.options.time_offset_sigma_s == 0.02
+    assert _parse(folder, CONFIG).max_dropout_s is None  # default: 25 sample periods
+    with pytest.raises(InputError, match=r"mocap\.yaml: mocap\.max_dropout_s: expected a number > 0"):
+        _parse(folder, CONFIG.replace("max_gap_s: 0.04", "max_gap_s: 0.04\n  max_dropout_s: 0"))
+    with pytest.raises(InputError, match=r"mocap\.yaml: options: mocap options: min_holds must be an integer >= 1"):
+        _parse(folder, CONFIG.replace("loss: huber", "loss: huber, min_holds: 0"))

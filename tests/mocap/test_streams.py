@@ -407,3 +407,64 @@ def test_nanosecond_stamps_declared_as_seconds_are_refused_with_a_hint():
     assert parse_pose_csv(text, "robot", "robot.csv", time_unit="ns").t_ns[0] == 1_700_000_000_000_000_000
     with pytest.raises(InputError, match="beyond"):
         parse_pose_csv(text.replace("1700", "9" * 30, 1), "robot", "robot.csv", time_unit="ns")
+
+
+# -- dropouts, the streams' own noise, relative motion -------------------------------------------
+
+
+def test_a_burst_of_dropped_csv_rows_is_interpolated_over_up_to_max_dropout_s():
+    rows = [[k * 0.01, k * 0.001, 0, 0, *ID] for k in range(40)]
+    for k in range(10, 18):  # an 8-sample occlusion: a 90 ms hole between valid samples
+        rows[k] = [rows[k][0]] + ["nan"] * 7
+    s = parse_pose_csv(_csv(rows), "b", "occl.csv")
+    assert len(s.dropout_t_ns) == 8
+    T, valid = interpolate(s, np.array([130_000_000]))
+    assert valid.all() and T[0, 0, 3] == pytest.approx(0.013)  # the straight path, bridged
+    _, valid = interpolate(s, np.array([130_000_000]), max_dropout_s=0.05)
+    assert not valid.any()
+    with pytest.raises(InputError, match=r"falls in a dropout of 8 samples.*max_dropout_s = 0\.05 s"):
+        s.at(130_000_000, max_dropout_s=0.05)
+    # a plain gap (no samples at all, not dropped ones) keeps max_gap_s
+    plain = parse_pose_csv(_csv([r for k, r in enumerate(rows) if not 10 <= k < 18]), "b", "gap.csv")
+    assert not interpolate(plain, np.array([130_000_000]))[1].any()
+    # the default scales with the stream's rate: 25 periods
+    assert s.window(0, 400_000_000).period_ns == 10_000_000
+
+
+def test_the_mcs_noise_is_estimated_from_the_stream_over_its_still_and_steady_stretches():
+    from rigcal.mocap.streams import mcs_noise
+
+    rng = np.random.default_rng(0)
+    n = 3000
+    t = np.arange(n, dtype=np.int64) * 10_000_000
+    x = np.where(np.arange(n) < 1500, 0.0, 0.01 * (np.arange(n) - 1500) * 0.01)  # still, then 1 cm/s
+    x[1000:1010] += np.linspace(0, 0.5, 10)  # a quick carry: too fast to count
+    T = np.stack([from_rt(so3_exp(rng.normal(0, 0.0003, 3)), [xi, 1.0, 0.5] + rng.normal(0, 0.00015, 3))
+                  for xi in x])
+    noise = mcs_noise(PoseStream("b", t, T))
+    assert noise.translation_m == pytest.approx(0.00015, rel=0.15)
+    assert noise.rotation_rad == pytest.approx(0.0003, rel=0.15)
+    assert noise.samples > 2500
+    exact = mcs_noise(PoseStream("b", t, np.stack([from_rt(np.eye(3), [xi, 0, 0]) for xi in x])))
+    assert exact.translation_m < 1e-12 and exact.rotation_rad < 1e-12
+    C = noise.covariance()
+    assert C.shape == (6, 6) and C[0, 0] == pytest.approx(noise.rotation_rad ** 2)
+
+
+def test_relative_velocity_is_the_slope_of_the_target_in_the_robot_frame():
+    from rigcal.geometry import se3_log
+    from rigcal.mocap.streams import interpolation_weight, relative_velocity
+
+    t = np.arange(200, dtype=np.int64) * 10_000_000
+    robot = PoseStream("r", t, np.stack([from_rt(so3_exp([0, 0, 0.02 * k * 0.01]), [0.05 * k * 0.01, 0, 0])
+                                         for k in range(200)]))
+    target = PoseStream("t", t, np.stack([from_rt(np.eye(3), [3.0, 1.0, 0.5])] * 200))
+    v = relative_velocity(robot, target, int(t[100]), 0.5)
+    h = 1e-3
+    T_rt = [np.linalg.inv(robot.at(int(t[100]) + int(d * 1e9))) @ target.at(int(t[100]))
+            for d in (0.0, h)]
+    expected = se3_log(np.linalg.inv(T_rt[0]) @ T_rt[1]) / h
+    np.testing.assert_allclose(v, expected, rtol=1e-3, atol=1e-6)
+    assert relative_velocity(robot, target, int(t[-1]) + 10**9, 0.5) is None  # not covered
+    assert interpolation_weight(robot, int(t[3])) == 1.0
+    assert interpolation_weight(robot, int(t[3]) + 5_000_000) == pytest.approx(0.5)

@@ -354,7 +354,7 @@ def test_a_start_behind_the_camera_is_recovered_by_pnp():
 
 
 def test_a_camera_nothing_can_place_is_refused_not_converged():
-    rig, obs = _camera_holds(np.random.default_rng(4), holds=2, frames=1)
+    rig, obs = _camera_holds(np.random.default_rng(4), holds=3, frames=1)
     few = [TargetObservation(o.sensor, o.target, o.t_ns, o.T_robot_target, o.measured[:3],
                              o.keypoints_target[:3]) for o in obs]  # 3 corners: no PnP
     flip = np.diag([1.0, -1.0, -1.0, 1.0])
@@ -437,3 +437,132 @@ def test_an_undetermined_sensor_is_named_in_the_error():
                         {"lidar": rig.T_robot_lidar, "camera": rig.T_robot_camera},
                         {"diamond": TargetSurface.of(target)})
     assert exc.value.sensor == "lidar"
+
+
+# --------------------------------------------------------------------------- issue 23
+
+
+def test_non_finite_mcs_poses_and_measurements_are_input_errors():
+    with pytest.raises(InputError, match=r"observation of 'd' by 'c' at t = 5 ns: T_robot_target has "
+                                         r"non-finite entries"):
+        TargetObservation("c", "d", 5, np.full((4, 4), np.nan), np.ones((4, 2)))
+    bad = np.ones((4, 2))
+    bad[1, 0] = np.inf
+    with pytest.raises(InputError, match="measured has non-finite entries"):
+        TargetObservation("c", "d", 5, np.eye(4), bad)
+    with pytest.raises(InputError, match=r"velocity must be finite numbers of shape \(6,\)"):
+        TargetObservation("c", "d", 5, np.eye(4), np.ones((4, 2)), velocity=np.ones(3))
+
+
+def test_a_camera_seen_in_one_hold_is_refused_naming_how_many_more_it_needs():
+    from rigcal.problem.mocap import calibrate_mocap_fit
+
+    rig, obs = _camera_holds(np.random.default_rng(7), holds=4, frames=4)
+    one = [o for o in obs if o.t_ns <= 4 * 250_000_000]  # the first hold's frames only
+    sensor = MocapSensor("camera", SensorKind.CAMERA, camera=rig.camera, sigma=1.0)
+    with pytest.raises(ConvergenceError, match=r"sensor 'camera': its measurements do not determine its "
+                                               r"pose: its targets were seen in 1 distinct hold, .* hold "
+                                               r"the target 2 more times in its image") as exc:
+        calibrate_mocap_fit([sensor], one, {"camera": rig.T_robot_camera})
+    assert exc.value.sensor == "camera"
+    # two holds at the same place count once
+    again = [TargetObservation(o.sensor, o.target, o.t_ns + 10**10, o.T_robot_target, o.measured,
+                               o.keypoints_target, hold="again") for o in one]
+    with pytest.raises(ConvergenceError, match=r"seen in 1 distinct hold \(2 holds, but at nearly the same"):
+        calibrate_mocap_fit([sensor], one + again, {"camera": rig.T_robot_camera})
+    fit = calibrate_mocap_fit([sensor], obs, {"camera": rig.T_robot_camera})  # four holds: fine
+    assert fit.sensors["camera"].views == 4
+
+
+def test_target_poses_are_shared_by_time_and_pose_not_by_stamps_alone():
+    # every observation stamped 1 ns apart (a broken clock): with estimated target poses, each
+    # observation keeps its own (its MCS pose differs), so the result is the same as without
+    rng = np.random.default_rng(11)
+    obs = _overlap_observations(rng, 12)
+    squeezed = [TargetObservation(o.sensor, o.target, k, o.T_robot_target, o.measured, o.keypoints_target)
+                for k, o in enumerate(obs)]
+    init = {k: T @ se3_exp(np.r_[np.radians(rng.uniform(-2, 2, 3)), rng.uniform(-0.02, 0.02, 3)])
+            for k, T in OVERLAP_TRUTH.items()}
+    r = calibrate_mocap(_overlap_sensors(), squeezed, init, options=MocapOptions(target_pose_sigma=(0.001, 0.001)))
+    for name, T in OVERLAP_TRUTH.items():
+        E = r.sensors[name].T_reference_sensor
+        assert np.linalg.norm(E[:3, 3] - T[:3, 3]) < 0.01, name  # was 8.3 m off
+
+
+def _moving_camera_holds(rng, offset_s, holds=6, frames=5, speed=0.05):
+    """Camera observations while the robot drives at ``speed`` in a new direction every hold;
+    the camera stamps its frames ``offset_s`` after their capture."""
+    import math
+
+    from rigcal.geometry.se3 import se3_log
+    from rigcal.sim.mocap import CAMERA, Placement, paper_rig, sample_target_pose
+    from rigcal.targets.templates import diamond_target
+
+    rig = paper_rig()
+    kp = diamond_target(0.5, 0.029, rows=6, cols=7, name="diamond").camera_keypoints
+    target = diamond_target(0.5, 0.029, rows=6, cols=7, name="diamond")
+    obs, t0 = [], 0.0
+    for h in range(holds):
+        T_mr0 = from_rt(matrix_from_rpy(np.array([0, 0, rng.uniform(-3, 3)])), [*rng.uniform(-2, 2, 2), 0])
+        T_mt = sample_target_pose(rig, CAMERA, target, T_mr0, rng, Placement(distance_range_m=(1.6, 3.0), clutter_boxes=0))
+        a = rng.uniform(-math.pi, math.pi)
+        v = speed * np.array([math.cos(a), math.sin(a), 0.0])
+
+        def T_mr(t, T_mr0=T_mr0, v=v, t0=t0):
+            return T_mr0 @ from_rt(np.eye(3), v * (t - t0))
+
+        for k in range(frames):
+            tc = t0 + 0.25 * k
+            st = tc + offset_s
+            T_st = invert(rig.T_robot_camera) @ invert(T_mr(tc)) @ T_mt
+            uv, _ = rig.camera.project(kp @ T_st[:3, :3].T + T_st[:3, 3])
+            T_a = invert(T_mr(st)) @ T_mt
+            vel = se3_log(invert(T_a) @ invert(T_mr(st + 1e-3)) @ T_mt) / 1e-3
+            obs.append(TargetObservation("camera", "diamond", int(st * 1e9), T_a,
+                                         uv + rng.normal(0, 0.05, uv.shape), kp, hold=str(h), velocity=vel))
+        t0 += 5.0
+    return rig, obs
+
+
+def test_a_clock_offset_is_estimated_with_its_std_when_the_robot_moves():
+    from rigcal.problem.mocap import calibrate_mocap_fit
+
+    rig, obs = _moving_camera_holds(np.random.default_rng(1), 0.05)
+    sensor = MocapSensor("camera", SensorKind.CAMERA, camera=rig.camera, sigma=1.0)
+    fit = calibrate_mocap_fit([sensor], obs, {"camera": rig.T_robot_camera})
+    f = fit.sensors["camera"]
+    assert f.time_offset_status == "determined"
+    assert abs(f.time_offset_s - 0.05) < 0.002 and f.time_offset_std_s < 0.001
+    E = fit.result.sensors["camera"].T_reference_sensor
+    assert np.linalg.norm(E[:3, 3] - rig.T_robot_camera[:3, 3]) < 0.001  # 2.5 mm off without it
+    assert fit.result.noise_model["camera"]["time_offset_s"] == f.time_offset_s
+    # with the clocks declared synchronised the offset is not estimated, and the pose errs
+    off = calibrate_mocap_fit([sensor], obs, {"camera": rig.T_robot_camera},
+                              options=MocapOptions(time_offset_sigma_s=0.0))
+    assert off.sensors["camera"].time_offset_status == "none"
+    E = off.result.sensors["camera"].T_reference_sensor
+    assert np.linalg.norm(E[:3, 3] - rig.T_robot_camera[:3, 3]) > 0.0005
+
+
+def test_an_offset_the_pose_absorbs_is_undetermined_and_widens_the_covariance():
+    # the robot drives the same way in every hold: the offset is a translation of the camera
+    from rigcal.problem.mocap import calibrate_mocap_fit
+
+    rng = np.random.default_rng(2)
+    rig, obs = _moving_camera_holds(rng, 0.0)  # no offset: both models are right about the data
+    same = []
+    for o in obs:  # every hold the same motion in the robot frame: 5 cm/s straight ahead
+        T = o.T_robot_target
+        same.append(TargetObservation(o.sensor, o.target, o.t_ns, T, o.measured, o.keypoints_target,
+                                      hold=o.hold, velocity=np.r_[0, 0, 0, T[:3, :3].T @ np.array([-0.05, 0, 0])]))
+    sensor = MocapSensor("camera", SensorKind.CAMERA, camera=rig.camera, sigma=1.0)
+    fit = calibrate_mocap_fit([sensor], same, {"camera": rig.T_robot_camera})
+    f = fit.sensors["camera"]
+    assert f.time_offset_status == "undetermined" and f.time_offset_effect > 1.5
+    assert f.time_offset_std_s > 0.02  # the prior's 50 ms, barely narrowed
+    still = calibrate_mocap_fit([sensor], [TargetObservation(o.sensor, o.target, o.t_ns, o.T_robot_target,
+                                                             o.measured, o.keypoints_target, hold=o.hold)
+                                           for o in same], {"camera": rig.T_robot_camera})
+    assert still.sensors["camera"].time_offset_status == "none"
+    assert np.trace(fit.result.sensors["camera"].covariance[3:, 3:]) > \
+        2 * np.trace(still.result.sensors["camera"].covariance[3:, 3:])

@@ -123,9 +123,9 @@ def print_mocap_demo(report, console) -> None:
     console.print(counts)
     console.print(
         "std: root sum of squares of the per-axis standard deviations the calibration reports: "
-        "from each sensor's own noise and a per-hold error of the target pose shared by the "
-        "frames of a hold; on this simulated session, whose motion capture is exact, it is "
-        "conservative (it assumes at least 0.5 mrad / 0.25 mm per hold)"
+        "from each sensor's errors estimated from its residuals - its own noise, the MCS's per "
+        "capture, and per hold (the verdict's errors note) - widened for the few holds they "
+        "rest on"
     )
     console.print(f"scene (run.bag, mocap.yaml, target, intrinsics, initial.json) written to {report.scene_dir}/")
     console.print(f"calibration (calibration.yaml, extrinsics.json, diagnostics.csv, overlays/) written to {report.results_dir}/")

@@ -226,6 +226,20 @@ def not_written(console, what: str = "the result", code: int = EXIT_FLAGGED) -> 
     return code
 
 
+def _mocap_residuals(result, console) -> None:
+    """A motion-capture result's measured residuals (the RMS over every measured point, the
+    same numbers as the measurements table and diagnostics.csv) and its warnings; no board
+    terms (pairs, boards, PSE) - a mocap calibration has none."""
+    e = table("measured residuals", ("sensor", "final, RMS over every point"))
+    for key, v in result.rmse_m.items():
+        e.add_row(key.split("-", 1)[-1], f"{v * 1000:.4g} mm")
+    for key, v in result.reprojection_px.items():
+        e.add_row(key.split("-", 1)[-1], f"{v:.4g} px")
+    console.print(e)
+    for w in result.warnings:
+        console.print(f"[yellow]warning:[/yellow] {w}")
+
+
 def summary(result, console, verdict_first: bool = True) -> None:
     """A calibration result: the verdict, the poses and their stds, the errors between
     sensors, outliers, PSE noise and warnings."""
@@ -240,6 +254,9 @@ def summary(result, console, verdict_first: bool = True) -> None:
     if priors:
         console.print("mounting priors (1 sigma around --initial; 0: held): " + "; ".join(
             f"{n}: " + ", ".join(f"{k} {v:g}" for k, v in p.items()) for n, p in priors.items()))
+    if result.mode == "mocap":
+        _mocap_residuals(result, console)
+        return
     e = table("errors between sensors", ("pair", "RMSE (mm)", "cross-val RMSE (mm)", "worst board"))
     for pair, v in result.rmse_m.items():
         cv = result.cross_validation_rmse_m.get(pair)

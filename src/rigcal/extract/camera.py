@@ -506,8 +506,10 @@ def extract_checkerboard(
     is right; a detected grid whose best ordering still differs from the prediction by more
     than ``max_order_residual_squares`` squares on average (after removing the mean offset) is
     refused: OpenCV can return a shifted or transposed sub-grid that takes in T-junctions of the
-    board's border. Without it the whole image (or ``crop``) is searched and OpenCV's order is
-    kept.
+    board's border. Without it the whole image (or ``crop``) is searched and which corner is
+    which cannot be told (a grid looks the same turned half round): the corners come in
+    OpenCV's order with ``keypoint_index`` None, no pose, and ``quality["orientation_ambiguous"]``
+    1 - order them with :func:`order_grid` against a prediction.
     ``crop`` (a :class:`PixelBox`) overrides the predicted region.
 
     With ``estimate_pose`` the pose comes from :func:`solve_pnp`; with ``outline_target``
@@ -593,7 +595,11 @@ def extract_checkerboard(
                 f"(squares are {square_px:.1f} px): a shifted or transposed grid",
             )
     else:
-        quality["orientation_guided"] = 0.0
+        # nothing tells a corner from its twin across the 180-degree turn: reported, not guessed
+        quality.update(orientation_guided=0.0, orientation_ambiguous=1.0)
+        return Measurement(sensor=sensor, t_ns=t_ns, target=target, keypoints=corners,
+                           keypoint_index=None, T_sensor_target=None,
+                           extras={"crop_box": np.array(box, dtype=float)}, quality=quality)
     extras = {"crop_box": np.array(box, dtype=float)}
     T_fit = None
     if estimate_pose:

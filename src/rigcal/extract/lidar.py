@@ -69,6 +69,7 @@ __all__ = [
     "euclidean_clusters",
     "extract_lidar_target",
     "extract_target_lidar",
+    "multi_start_icp",
     "ring_ends",
     "score_clusters",
 ]
@@ -210,6 +211,80 @@ def ring_ends(
     return np.array(ends).reshape(-1, 3)
 
 
+#: the coarse global search: the template's plane (its thinnest axis) laid on the cluster's
+#: both ways, turned about it in these steps [deg]; a short ICP from each, the best refined
+MULTI_START_SPIN_DEG = 45.0
+MULTI_START_ITERATIONS = 15
+
+
+def _axes(points: np.ndarray) -> np.ndarray:
+    """(3, 3) principal axes (columns, largest extent first) forming a right-handed frame."""
+    q = points - points.mean(axis=0)
+    _, _, Vt = np.linalg.svd(q, full_matrices=False)
+    R = Vt.T.copy()
+    if np.linalg.det(R) < 0:
+        R[:, 2] *= -1.0
+    return R
+
+
+def multi_start_icp(
+    template: PreparedTemplate,
+    cluster: np.ndarray,
+    T_expected: np.ndarray,
+    options: IcpOptions | None = None,
+    *,
+    rim_points_sensor: np.ndarray | None = None,
+    on_template_m: float = 0.02,
+    sensor: str = "",
+    t_ns: int = 0,
+):
+    """ICP of ``template`` onto ``cluster`` (N, 3) from many orientations, not one: the
+    template's principal frame laid on the cluster's with the four proper sign choices of the
+    axes, each turned about the cluster's thinnest axis (a plate's normal) in
+    MULTI_START_SPIN_DEG steps, centroids together. A short ICP from every start ranks them by
+    the share of cluster points on the fitted template (then the RMS; among fits as good as the
+    best - a symmetric template - the one closest to ``T_expected`` (4, 4)), and the best is
+    refined by a full ICP. Returns the :func:`rigcal.extract.icp.icp_align` result of the best
+    start, or its failure when none fits."""
+    from dataclasses import replace as _replace
+
+    opts = options or IcpOptions()
+    coarse = _replace(opts, max_iterations=MULTI_START_ITERATIONS,
+                      max_rotation_change_rad=math.pi, max_translation_change_m=2.0)
+    Rt = _axes(template.points)
+    Rc = _axes(cluster)
+    n = Rc[:, 2]
+    centre_t = template.points.mean(axis=0)
+    centre_c = cluster.mean(axis=0)
+    best, best_key, last_fail = None, None, None
+    for signs in ((1, 1, 1), (1, -1, -1), (-1, 1, -1), (-1, -1, 1)):
+        base = Rc @ np.diag(signs) @ Rt.T
+        for spin in np.arange(0.0, 360.0, MULTI_START_SPIN_DEG):
+            a = math.radians(spin)
+            K = np.array([[0, -n[2], n[1]], [n[2], 0, -n[0]], [-n[1], n[0], 0]])
+            Rs = np.eye(3) + math.sin(a) * K + (1 - math.cos(a)) * (K @ K)
+            R = Rs @ base
+            T0 = np.eye(4)
+            T0[:3, :3] = R
+            T0[:3, 3] = centre_c - R @ centre_t
+            fit = icp_align(template, cluster, T0, coarse, rim_points_sensor=rim_points_sensor,
+                            sensor=sensor, t_ns=t_ns)
+            if isinstance(fit, ExtractionFailure):
+                last_fail = fit
+                continue
+            on = float(np.mean(fit.distances_m <= on_template_m))
+            dR = T_expected[:3, :3].T @ fit.T_sensor_target[:3, :3]
+            turn = float(np.linalg.norm(so3_log(dR)))
+            key = (round(on, 2), -round(fit.rms_m, 4), -turn)
+            if best_key is None or key > best_key:
+                best, best_key = fit, key
+    if best is None:
+        return last_fail if last_fail is not None else ExtractionFailure(
+            sensor, t_ns, "icp_diverged", "no start of the global search fitted the template")
+    return icp_align(template, cluster, best.T_sensor_target, opts,
+                     rim_points_sensor=rim_points_sensor, sensor=sensor, t_ns=t_ns)
+
+
 def _cloud(cloud, sensor: str, t_ns: int | None) -> tuple[np.ndarray, str, int]:
     if isinstance(cloud, PointCloudFrame):
         return cloud.points_xyz, sensor or cloud.sensor, cloud.t_ns if t_ns is None else t_ns
@@ -238,6 +313,7 @@ def extract_lidar_target(
     on_template_m: float = 0.02,
     min_on_template_fraction: float = 0.6,
     min_fraction_in_view: float = 0.5,
+    multi_start: bool = False,
     sensor: str = "",
     t_ns: int | None = None,
     target: str = "target",
@@ -255,7 +331,9 @@ def extract_lidar_target(
     ``on_template_m``: the distance within which a scan point counts as on the fitted template;
     a fit that leaves more than ``1 - min_on_template_fraction`` of the cluster off the template
     explains only part of it (e.g. the plate laid along one ring of a far-off guess) and is
-    refused as ``icp_diverged``.
+    refused as ``icp_diverged``. ``multi_start``: a coarse global search over the template's
+    orientation instead of one ICP from the expected pose (a guess tens of degrees off):
+    :func:`multi_start_icp`.
 
     Returns a :class:`Measurement` (``keypoints`` (K, 3) with ``keypoint_index`` 0..K-1, or the
     on-template points (M, 3) without; ``T_sensor_target`` the ICP pose; extras
@@ -341,9 +419,13 @@ def extract_lidar_target(
     if tpl.has_rim:
         rim_obs = ring_ends(cluster, spec.vertical_step_rad, spec.horizontal_step_rad)
         quality["ring_ends"] = float(len(rim_obs))
-    fit = icp_align(
-        tpl, cluster, T0, icp_options, rim_points_sensor=rim_obs, sensor=sensor, t_ns=t_ns
-    )
+    if multi_start:
+        fit = multi_start_icp(tpl, cluster, T_exp, icp_options, rim_points_sensor=rim_obs,
+                              on_template_m=on_template_m, sensor=sensor, t_ns=t_ns)
+    else:
+        fit = icp_align(
+            tpl, cluster, T0, icp_options, rim_points_sensor=rim_obs, sensor=sensor, t_ns=t_ns
+        )
     if isinstance(fit, ExtractionFailure):
         return fit
     T = fit.T_sensor_target

@@ -40,6 +40,8 @@ NO_CONTOUR = "no_contour"
 NO_POINTS_IN_CROP = "no_points_in_crop"
 NO_CLUSTER = "no_cluster"
 ICP_DIVERGED = "icp_diverged"
+#: a grid whose symmetric orderings (a checkerboard turned half round) the guess cannot tell apart
+ORIENTATION_AMBIGUOUS = "orientation_ambiguous"
 
 REASONS = frozenset(
     {
@@ -56,6 +58,7 @@ REASONS = frozenset(
         NO_POINTS_IN_CROP,
         NO_CLUSTER,
         ICP_DIVERGED,
+        ORIENTATION_AMBIGUOUS,
     }
 )
 """Every reason code an extractor may report."""

@@ -15,6 +15,8 @@ Example (paths are relative to the file's folder)::
         cylinder: {topic: /vicon/cyl/cyl, definition: CylinderTarget.json,
                    template: cyl.pcd, dims: {radius_m: 0.0564, height_m: 0.4956}}
       max_gap_s: 0.05                         # longest mocap gap bridged by interpolation
+      max_dropout_s: 0.25                     # longest burst of dropped (NaN) samples bridged
+                                              # (default: 25 sample periods of each stream)
     initial_calibration: initial.json         # the original tool's extrinsics JSON, or a
                                               # calibration YAML; omitted: the bag's /tf_static
     robot_frame: base_link                    # the frame of the tracked robot body
@@ -82,7 +84,7 @@ __all__ = [
 
 _TOP_KEYS = ("recording", "mocap", "initial_calibration", "robot_frame", "sensors",
              "extraction", "options", "report")
-_MOCAP_KEYS = ("robot", "targets", "max_gap_s")
+_MOCAP_KEYS = ("robot", "targets", "max_gap_s", "max_dropout_s")
 _POSE_KEYS = ("topic", "tf_child", "tf_parent", "csv", "time_unit")
 _TARGET_KEYS = _POSE_KEYS + ("definition", "analytic", "template", "dims", "kind", "use_lidar_keypoints")
 _SENSOR_COMMON = ("name", "kind", "topic", "frame_id")
@@ -244,6 +246,9 @@ class MocapConfig:
     initial_calibration: Path | None = None
     initial: Extrinsics | None = None
     max_gap_s: float = DEFAULT_MAX_GAP_S
+    #: the longest gap left by dropped samples (a NaN burst) that is interpolated over; None:
+    #: DROPOUT_SAMPLES sample periods of each stream (:func:`rigcal.mocap.streams.interpolate`)
+    max_dropout_s: float | None = None
     extraction: ExtractionSettings = ExtractionSettings()
     options: MocapOptions = MocapOptions()
     overlays_per_sensor: int = 3
@@ -511,7 +516,10 @@ def _options(raw: Any, source: str) -> MocapOptions:
             kw[key] = value
         else:
             kw[key] = _number(value, w, minimum=0.0)
-    return MocapOptions(**kw)
+    try:
+        return MocapOptions(**kw)
+    except InputError as exc:
+        raise InputError(f"{where}: {exc}") from None
 
 
 def read_initial_calibration(path: str | os.PathLike[str]) -> Extrinsics:
@@ -564,6 +572,9 @@ def parse_mocap_config(text: str, source: str, base_dir: str | os.PathLike[str])
                for n, r in targets_raw.items()}
     max_gap = _number(mocap.get("max_gap_s", DEFAULT_MAX_GAP_S), f"{source}: mocap.max_gap_s",
                       positive=True)
+    max_dropout = None
+    if mocap.get("max_dropout_s") is not None:
+        max_dropout = _number(mocap["max_dropout_s"], f"{source}: mocap.max_dropout_s", positive=True)
     folder = not (recording.is_file() or (recording / "metadata.yaml").exists())
     if folder:
         for label, spec in [("robot", robot)] + [(f"targets.{n}", t.pose)
@@ -623,6 +634,7 @@ def parse_mocap_config(text: str, source: str, base_dir: str | os.PathLike[str])
         initial_calibration=initial_path,
         initial=initial,
         max_gap_s=max_gap,
+        max_dropout_s=max_dropout,
         extraction=_extraction(data.get("extraction") or {}, source),
         options=_options(data.get("options") or {}, source),
         overlays_per_sensor=overlays,

@@ -55,14 +55,17 @@ import numpy as np
 from rigcal.dataset import SensorKind
 from rigcal.errors import ConvergenceError, InputError, RigcalError
 from rigcal.extract.guidance import camera_view, lidar_view, motion_check
-from rigcal.extract.result import NO_CLUSTER, NO_CONTOUR, NO_POSE_DATA, TARGET_MOVING, ExtractionFailure
+from rigcal.extract.result import (NO_CLUSTER, NO_CONTOUR, NO_POSE_DATA, ORIENTATION_AMBIGUOUS,
+                                   TARGET_MOVING, ExtractionFailure)
 from rigcal.geometry.se3 import invert, transform_points
 from rigcal.geometry.so3 import so3_log
 from rigcal.mocap.config import MocapConfig, PoseSourceSpec, SensorSpec, TargetSpec
 from rigcal.mocap.extrinsics import Extrinsics
-from rigcal.mocap.streams import PoseStream, interpolate
+from rigcal.mocap.streams import (PoseStream, interpolate, interpolation_weight, mcs_noise,
+                                  relative_velocity)
 from rigcal.problem.consistency import mocap_verdict
-from rigcal.problem.mocap import MocapFit, MocapSensor, TargetObservation, calibrate_mocap_fit
+from rigcal.problem.mocap import (MocapFit, MocapSensor, TargetObservation, calibrate_mocap_fit,
+                                  measured_residuals, shift_observation)
 from rigcal.targets.surface import TargetSurface
 from rigcal.problem.result import CalibrationResult
 from rigcal.problem.uncertainty import weak_directions
@@ -168,6 +171,9 @@ class MocapRun:
     #: sensors left out of ``result``, each with the reason (no frames, every measurement
     #: rejected, or a pose its measurements do not determine); also ``result.not_calibrated``
     not_calibrated: Mapping[str, str] = field(default_factory=lambda: MappingProxyType({}))
+    #: configured targets no sensor kept a measurement of, each with its rejection counts (the
+    #: others calibrated the sensors; also a note in the verdict)
+    targets_not_seen: Mapping[str, str] = field(default_factory=lambda: MappingProxyType({}))
 
     @property
     def final(self) -> dict[str, np.ndarray]:
@@ -271,19 +277,23 @@ def _initial_extrinsics(config: MocapConfig) -> Extrinsics:
 
 
 class _PoseLookup:
-    """Interpolated MCS poses with the reason a time has none."""
+    """Interpolated MCS poses with the reason a time has none, and the stream's own noise."""
 
-    def __init__(self, stream: PoseStream, label: str, max_gap_s: float) -> None:
+    def __init__(self, stream: PoseStream, label: str, max_gap_s: float,
+                 max_dropout_s: float | None = None) -> None:
         self.stream = stream
         self.label = label
         self.max_gap_s = max_gap_s
+        self.max_dropout_s = max_dropout_s
+        self.noise = mcs_noise(stream)
 
     def at(self, t_ns: int) -> tuple[np.ndarray | None, str]:
-        T, ok = interpolate(self.stream, np.array([t_ns], dtype=np.int64), self.max_gap_s)
+        T, ok = interpolate(self.stream, np.array([t_ns], dtype=np.int64), self.max_gap_s,
+                            self.max_dropout_s)
         if ok[0]:
             return T[0], ""
         try:
-            self.stream.at(t_ns, self.max_gap_s)
+            self.stream.at(t_ns, self.max_gap_s, self.max_dropout_s)
         except InputError as exc:
             return None, f"{self.label}: {exc}"
         return None, f"{self.label}: no pose at t = {t_ns} ns"  # pragma: no cover
@@ -302,6 +312,9 @@ class _Context:
     prepared: dict[str, Any] = field(default_factory=dict)
     #: per sensor, how much wider than configured the search is (a guess far off: nothing found)
     widen: dict[str, float] = field(default_factory=dict)
+    #: per sensor, ``T_robot_sensor`` implied by each measurement with a fitted target pose
+    #: (the lidar's ICP): what a wide search tells about a far-off guess
+    found_poses: dict[str, list] = field(default_factory=dict)
 
 
 def _motion(ctx: _Context, t_ns: int, target: str) -> tuple[bool, str, str]:
@@ -311,8 +324,8 @@ def _motion(ctx: _Context, t_ns: int, target: str) -> tuple[bool, str, str]:
     tl = ctx.targets[target]
     times = np.unique(np.concatenate([[lo, t_ns, hi], ctx.robot.times(lo, hi),
                                       tl.times(lo, hi)]).astype(np.int64))
-    T_mr, ok_r = interpolate(ctx.robot.stream, times, ctx.robot.max_gap_s)
-    T_mt, ok_t = interpolate(tl.stream, times, tl.max_gap_s)
+    T_mr, ok_r = interpolate(ctx.robot.stream, times, ctx.robot.max_gap_s, ctx.robot.max_dropout_s)
+    T_mt, ok_t = interpolate(tl.stream, times, tl.max_gap_s, tl.max_dropout_s)
     bad = ~(ok_r & ok_t)
     if np.any(bad):
         k = int(np.flatnonzero(bad)[0])
@@ -326,6 +339,34 @@ def _motion(ctx: _Context, t_ns: int, target: str) -> tuple[bool, str, str]:
     check = motion_check(t_ns, times, T_rt, ex.motion_window_s, ex.max_linear_mps,
                          ex.max_angular_radps)
     return check.still, check.reason, check.detail
+
+
+def _velocity(ctx: _Context, t_ns: int, target: str) -> np.ndarray | None:
+    """The target's velocity relative to the robot at ``t_ns`` (a twist, see
+    :func:`rigcal.mocap.streams.relative_velocity`) over the motion window; None (taken as
+    still) when the streams do not cover it or it is below what the MCS's noise can show."""
+    tl = ctx.targets[target]
+    v = relative_velocity(ctx.robot.stream, tl.stream, t_ns, ctx.config.extraction.motion_window_s,
+                          tl.max_gap_s, tl.max_dropout_s)
+    if v is None or not np.all(np.isfinite(v)) or float(np.abs(v).max()) < 1e-6:
+        return None
+    return v
+
+
+def _pose_cov(ctx: _Context, t_ns: int, target: str, T_rt: np.ndarray) -> np.ndarray | None:
+    """(6, 6) the MCS's error of ``T_robot_target`` at ``t_ns`` from the streams' own noise
+    (:func:`rigcal.mocap.streams.mcs_noise`): the target's, and the robot's reaching the target
+    through the lever arm between them, each scaled by its interpolation weight. None when the
+    streams show none (exact poses) or cannot tell."""
+    from rigcal.geometry.se3 import adjoint
+
+    tl, rl = ctx.targets[target], ctx.robot
+    if (tl.noise.samples == 0 or rl.noise.samples == 0 or
+            max(tl.noise.translation_m, rl.noise.translation_m, tl.noise.rotation_rad, rl.noise.rotation_rad) <= 0):
+        return None
+    Ad = adjoint(invert(T_rt))
+    return (interpolation_weight(tl.stream, t_ns) * tl.noise.covariance()
+            + interpolation_weight(rl.stream, t_ns) * (Ad @ rl.noise.covariance() @ Ad.T))
 
 
 def _expected_view(sensor: SensorSpec, target: Target, T_st: np.ndarray, ctx: _Context):
@@ -355,10 +396,19 @@ def _wide_checkerboard(frame: Any, sensor: SensorSpec, target: Target, T_st: np.
     if isinstance(m, ExtractionFailure):
         return m
     expected, _ = sensor.camera.project(transform_points(T_st, target.camera_keypoints))
-    if np.all(np.isfinite(expected)):
-        corners, _, _, _ = order_grid(m.keypoints, size, expected)
-        m = replace(m, keypoints=corners)
-    return m
+    if not np.all(np.isfinite(expected)):
+        return ExtractionFailure(sensor.name, frame.t_ns, ORIENTATION_AMBIGUOUS,
+                                 "a checkerboard was found, but its predicted corners do not all "
+                                 "project: which corner is which cannot be told")
+    corners, sym, err, runner = order_grid(m.keypoints, size, expected)
+    if err > _ORDER_AMBIGUITY * runner:
+        # the guess tells the grid's symmetric orderings apart too weakly: a half-turned grid
+        # would be a wrong calibration, so the frame is left out
+        return ExtractionFailure(sensor.name, frame.t_ns, ORIENTATION_AMBIGUOUS,
+                                 f"the predicted corners fit the grid's best ordering ({sym}) by "
+                                 f"{err:.0f} px, its next best by {runner:.0f} px: the guess cannot "
+                                 "tell which way round the checkerboard is")
+    return replace(m, keypoints=corners, keypoint_index=np.arange(len(corners)))
 
 
 def _extract(frame: Any, sensor: SensorSpec, target: Target, T_st: np.ndarray, ctx: _Context):
@@ -388,8 +438,8 @@ def _extract(frame: Any, sensor: SensorSpec, target: Target, T_st: np.ndarray, c
         frame, target, T_st, ctx.prepared[target.name], lidar=sensor.lidar, uncertainty=unc,
         crop_pad_m=ex.crop_pad_m, on_template_m=ex.on_template_m,
         min_cluster_points=ex.min_cluster_points,
-        min_fraction_in_view=0.0 if w > 1.0 else ex.lidar_min_fraction_in_view, sensor=sensor.name,
-        t_ns=frame.t_ns,
+        min_fraction_in_view=0.0 if w > 1.0 else ex.lidar_min_fraction_in_view,
+        multi_start=w > 1.0, sensor=sensor.name, t_ns=frame.t_ns,
     )
 
 
@@ -429,7 +479,9 @@ def _process(frame: Any, sensor: SensorSpec, tspec: TargetSpec, ctx: _Context):
                   else target.lidar_keypoints)
         if source is not None:
             keypoints_target = source[m.keypoint_index]
-    obs = TargetObservation(sensor.name, tspec.name, t, T_rt, m.keypoints, keypoints_target)
+    obs = TargetObservation(sensor.name, tspec.name, t, T_rt, m.keypoints, keypoints_target,
+                            velocity=_velocity(ctx, t, tspec.name),
+                            pose_cov=_pose_cov(ctx, t, tspec.name, T_rt))
     diag = MeasurementDiagnostic(status=KEPT, keypoints=len(m.keypoints),
                                  correspondences=keypoints_target is not None,
                                  unit="px" if sensor.kind is SensorKind.CAMERA else "m", **row)
@@ -443,30 +495,15 @@ def _process(frame: Any, sensor: SensorSpec, tspec: TargetSpec, ctx: _Context):
 def observation_residual(obs: TargetObservation, sensor: SensorSpec, target: Target,
                          T_robot_sensor: np.ndarray, surface: TargetSurface | None = None) -> float:
     """RMS residual of one observation under ``T_robot_sensor``: [m] for a lidar, [px] for a
-    camera (see the module docstring; without correspondences: a lidar point's distance to
-    the target's surface, a pixel's to the nearest projected template point)."""
-    from scipy.spatial import cKDTree
-
-    T_st = invert(np.asarray(T_robot_sensor, dtype=float)) @ obs.T_robot_target
-    pts = obs.keypoints_target if obs.keypoints_target is not None else target.template
-    X = transform_points(T_st, pts)
-    if sensor.kind is SensorKind.CAMERA:
-        uv, _ = sensor.camera.project(X)
-        ok = np.all(np.isfinite(uv), axis=1)
-        if obs.keypoints_target is not None:
-            if not np.all(ok):
-                return math.nan
-            e = np.linalg.norm(obs.measured - uv, axis=1)
-        else:
-            if not np.any(ok):
-                return math.nan
-            e, _ = cKDTree(uv[ok]).query(obs.measured)
-    elif obs.keypoints_target is not None:
-        e = np.linalg.norm(obs.measured - X, axis=1)
-    else:
-        surface = surface if surface is not None else TargetSurface.of(target)
-        e = surface.distance(transform_points(invert(T_st), obs.measured))
-    return float(np.sqrt(np.mean(np.square(e))))
+    camera - the RMS of :func:`rigcal.problem.mocap.measured_residuals` (the one definition of
+    a mocap residual: the result's ``rmse_m`` / ``reprojection_px`` are the RMS of the same
+    numbers over every point of a sensor)."""
+    m = MocapSensor(sensor.name, sensor.kind, camera=sensor.camera, sigma=sensor.sigma,
+                    frame_id=sensor.frame_id)
+    e = measured_residuals(obs, m, T_robot_sensor,
+                           surface if surface is not None else TargetSurface.of(target))
+    e = e[np.isfinite(e)]
+    return float(np.sqrt(np.mean(np.square(e)))) if e.size else math.nan
 
 
 # --------------------------------------------------------------------------------------------
@@ -491,11 +528,40 @@ def _overlay_wanted(chosen: list[OverlayInput], T_rt: np.ndarray, limit: int) ->
 
 
 _MAX_PASSES = 5
+#: a wide-search checkerboard is ordered by the guess only when the best ordering fits the
+#: prediction at least this much better than the next (the half-turned grid)
+_ORDER_AMBIGUITY = 0.5
 #: a sensor whose residuals scatter by more than this many times its configured sigma is refused
 _MAX_NOISE_RATIO = 5.0
 _WIDEN = 4.0
 _SETTLED_M = 0.002
 _SETTLED_RAD = math.radians(0.1)
+
+
+def _consensus(cands: list[np.ndarray], metres: float = 0.05, radians: float = math.radians(5.0)
+               ) -> np.ndarray | None:
+    """The pose most of ``cands`` (4, 4) agree on: the candidate with the most others within
+    ``metres`` and ``radians`` of it (at least half of them; None otherwise), averaged with
+    them (mean translation, rotation by the chordal mean)."""
+    n = len(cands)
+    support = []
+    for A in cands:
+        near = [B for B in cands
+                if np.linalg.norm(A[:3, 3] - B[:3, 3]) <= metres
+                and np.linalg.norm(so3_log(A[:3, :3].T @ B[:3, :3])) <= radians]
+        support.append(near)
+    best = max(support, key=len)
+    if 2 * len(best) < n:
+        return None
+    U, _, Vt = np.linalg.svd(sum(B[:3, :3] for B in best))
+    R = U @ Vt
+    if np.linalg.det(R) < 0:
+        U[:, -1] *= -1
+        R = U @ Vt
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = np.mean([B[:3, 3] for B in best], axis=0)
+    return T
 
 
 def _close(A: np.ndarray, B: np.ndarray) -> bool:
@@ -514,6 +580,8 @@ def _extract_all(config: MocapConfig, ctx: _Context, sensors: dict[str, SensorSp
     overlays: dict[str, list[OverlayInput]] = {s: [] for s in sensors}
     frames_read: Counter = Counter()
     first_t: int | None = None
+    found_poses = ctx.found_poses
+    found_poses.clear()
     with open_any(config.recording) as rec:
         plan = {}
         total = 0
@@ -535,6 +603,9 @@ def _extract_all(config: MocapConfig, ctx: _Context, sensors: dict[str, SensorSp
                 if obs is None:
                     continue
                 observations.append(obs)
+                if m.T_sensor_target is not None:
+                    found_poses.setdefault(sensor.name, []).append(
+                        obs.T_robot_target @ invert(np.asarray(m.T_sensor_target, dtype=float)))
                 if _overlay_wanted(overlays[sensor.name], obs.T_robot_target,
                                    config.overlays_per_sensor):
                     camera = sensor.kind is SensorKind.CAMERA
@@ -603,18 +674,16 @@ def _unusable(config: MocapConfig, sensors: Mapping[str, SensorSpec], diagnostic
     return out
 
 
-def _check_targets(config: MocapConfig, diagnostics, observations) -> None:
+def _unseen_targets(config: MocapConfig, diagnostics, observations) -> dict[str, str]:
+    """target -> why no sensor kept a measurement of it (its rejection counts): reported, not
+    fatal - the other targets calibrate the sensors."""
     by_target: dict[str, Counter] = {t: Counter() for t in config.targets}
     for d in diagnostics:
         if not d.kept:
             by_target[d.target][d.reason] += 1
     kept_target = Counter(o.target for o in observations)
-    for name in config.targets:
-        if kept_target[name] == 0:
-            raise InputError(
-                f"{config.source}: target '{name}' was never extracted by any sensor: "
-                f"rejections {_rejection_text(by_target[name])}"
-            )
+    return {name: f"never extracted by any sensor: rejections {_rejection_text(by_target[name])}"
+            for name in config.targets if kept_target[name] == 0}
 
 
 def _own_reason(name: str, message: str) -> str:
@@ -673,8 +742,8 @@ def run_mocap(config: MocapConfig, progress: Callable[[int, int], None] | None =
     initial = config.initial_T_robot_sensor(extrinsics)
     ctx = _Context(
         config=config,
-        robot=_PoseLookup(robot_stream, "mocap.robot", config.max_gap_s),
-        targets={n: _PoseLookup(s, f"mocap.targets.{n}", config.max_gap_s)
+        robot=_PoseLookup(robot_stream, "mocap.robot", config.max_gap_s, config.max_dropout_s),
+        targets={n: _PoseLookup(s, f"mocap.targets.{n}", config.max_gap_s, config.max_dropout_s)
                  for n, s in target_streams.items()},
         initial=initial,
     )
@@ -753,12 +822,26 @@ def run_mocap(config: MocapConfig, progress: Callable[[int, int], None] | None =
             for n in empty:
                 ctx.widen[n] = _WIDEN
             continue
+        # a sensor found in the wide search with its target's pose fitted (the lidar's global
+        # ICP search): the poses it implies agree on one T_robot_sensor - searched again from
+        # there, at the configured width
+        moved_start = {}
+        for n, cands in ctx.found_poses.items():
+            if ctx.widen.get(n, 1.0) > 1.0 and n in active_specs and len(cands) >= 2:
+                T = _consensus(cands)
+                if T is not None and not _close(T, ctx.initial[n]):
+                    moved_start[n] = T
+        if moved_start and attempt < _MAX_PASSES - 1:
+            ctx.initial = {**ctx.initial, **moved_start}
+            for n in moved_start:
+                ctx.widen.pop(n, None)
+            continue
         lost = _unusable(config, active_specs, diagnostics, observations, frames_read, ctx.widen)
         if lost:
             give_up(lost, solver=False)
         if len(given_up) == len(sensors):
             raise nothing_left()
-        _check_targets(config, diagnostics + carried_diags, observations + carried_obs)
+        unseen = _unseen_targets(config, diagnostics + carried_diags, observations + carried_obs)
         observations = _label_holds(observations, ctx)
         fit = fit_active(may_widen=attempt < _MAX_PASSES - 1)
         if fit is None:
@@ -783,8 +866,10 @@ def run_mocap(config: MocapConfig, progress: Callable[[int, int], None] | None =
         give_up(_inconsistent(fit), solver=True)
         raise nothing_left()
     refuse_inconsistent(fit, config.source)
+    for name, why in unseen.items():
+        log.warning("%s: target '%s' %s", config.source, name, why)
     weak = {n: weak_directions(e.std) for n, e in fit.result.sensors.items() if n in sensors}
-    result = replace(fit.result, verdict=mocap_verdict(fit, weak),
+    result = replace(fit.result, verdict=mocap_verdict(fit, weak, unseen),
                      not_calibrated={n: given_up[n] for n in sensors if n in given_up},
                      reference_frame=config.robot_frame)  # the body's frame in every output
     final = {n: e.T_reference_sensor for n, e in result.sensors.items()}
@@ -800,10 +885,15 @@ def run_mocap(config: MocapConfig, progress: Callable[[int, int], None] | None =
         if d.kept:
             obs = next(it)
             s, tgt = sensors[d.sensor], config.targets[d.target].target
+            final_res = math.nan
+            if d.sensor in final:
+                # the final model: the MCS pose at the capture time (the clock offset applied)
+                off = fit.sensors[d.sensor].time_offset_s
+                shifted = shift_observation(obs, off) if math.isfinite(off) else obs
+                final_res = observation_residual(shifted, s, tgt, final[d.sensor], templates[d.target])
             d = replace(d,
                         residual_initial=observation_residual(obs, s, tgt, initial[d.sensor], templates[d.target]),
-                        residual_final=(observation_residual(obs, s, tgt, final[d.sensor], templates[d.target])
-                                        if d.sensor in final else math.nan))
+                        residual_final=final_res)
         filled.append(d)
     return MocapRun(
         config=config,
@@ -818,6 +908,7 @@ def run_mocap(config: MocapConfig, progress: Callable[[int, int], None] | None =
         fit=fit,
         passes=attempt + 1,
         not_calibrated=MappingProxyType(dict(result.not_calibrated)),
+        targets_not_seen=MappingProxyType(dict(unseen)),
     )
 
 
@@ -845,9 +936,13 @@ def diagnostics_csv_text(run: MocapRun) -> str:
     return buf.getvalue()
 
 
-def _rms(values: list[float]) -> float:
-    v = np.array([x for x in values if math.isfinite(x)])
-    return float(np.sqrt(np.mean(v**2))) if v.size else math.nan
+def _rms(values: list[float], weights: list[int] | None = None) -> float:
+    """The RMS over every point of the measurements whose RMS are ``values`` (each weighted by
+    its ``weights``: points measured), the same number as the result's residual."""
+    w = np.ones(len(values)) if weights is None else np.asarray(weights, dtype=float)
+    v = np.array(values, dtype=float)
+    ok = np.isfinite(v) & (w > 0)
+    return float(np.sqrt(np.sum(w[ok] * v[ok] ** 2) / np.sum(w[ok]))) if np.any(ok) else math.nan
 
 
 def summary_rows(run: MocapRun) -> list[tuple]:
@@ -866,7 +961,8 @@ def summary_rows(run: MocapRun) -> list[tuple]:
         rows.append((
             s.name, s.kind.value, int(run.frames.get(s.name, 0)), len(kept), len(mine) - len(kept),
             _rejection_text(rej) if rej else "",
-            _rms([d.residual_initial for d in kept]), _rms([d.residual_final for d in kept]),
+            _rms([d.residual_initial for d in kept], [d.keypoints for d in kept]),
+            _rms([d.residual_final for d in kept], [d.keypoints for d in kept]),
             "px" if s.kind is SensorKind.CAMERA else "m",
             math.nan if T1 is None else float(np.linalg.norm(T1[:3, 3] - T0[:3, 3]) * 1e3),
             math.nan if T1 is None else

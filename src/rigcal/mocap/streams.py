@@ -37,7 +37,7 @@ from __future__ import annotations
 import logging
 import math
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from decimal import ROUND_HALF_EVEN, Decimal, InvalidOperation
 from pathlib import Path
 from typing import Any, Iterable, Mapping, NamedTuple, Sequence
@@ -51,6 +51,8 @@ from rigcal.geometry.so3 import so3_exp, so3_log
 
 __all__ = [
     "DEFAULT_MAX_GAP_S",
+    "DROPOUT_SAMPLES",
+    "MocapNoise",
     "POSE_MSGTYPES",
     "TF_MSGTYPE",
     "PoseSources",
@@ -58,12 +60,15 @@ __all__ = [
     "interpolate",
     "list_pose_sources",
     "matrix_to_quat_xyzw",
+    "mcs_noise",
     "parse_pose_csv",
     "pose_csv_text",
     "quat_xyzw_to_matrix",
     "read_pose_csv",
     "read_pose_topics",
     "read_tf_streams",
+    "interpolation_weight",
+    "relative_velocity",
     "write_pose_csv",
 ]
 
@@ -71,6 +76,10 @@ log = logging.getLogger(__name__)
 
 DEFAULT_MAX_GAP_S = 0.05
 """Largest gap between two samples [s] that :func:`interpolate` bridges (20 Hz)."""
+
+DROPOUT_SAMPLES = 25
+"""A gap left by dropped samples (mocap dropouts) is bridged up to this many sample periods by
+default (0.25 s at 100 Hz): a burst of occluded samples is not a hole in the data."""
 
 _NS = 1_000_000_000
 _RIGID_TOL = 1e-6
@@ -174,6 +183,9 @@ class PoseStream:
     T: np.ndarray
     frame_id: str = ""
     source: str = ""
+    #: stamps [ns] of the samples dropped as mocap dropouts (an occluded body: NaN values):
+    #: a gap that holds one is bridged up to ``max_dropout_s`` (:func:`interpolate`)
+    dropout_t_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
 
     def __post_init__(self) -> None:
         what = f"{self.source + ': ' if self.source else ''}pose stream '{self.name}'"
@@ -214,11 +226,14 @@ class PoseStream:
         T.setflags(write=False)
         object.__setattr__(self, "t_ns", t)
         object.__setattr__(self, "T", T)
+        d = np.unique(np.asarray(self.dropout_t_ns, dtype=np.int64).reshape(-1))
+        d.setflags(write=False)
+        object.__setattr__(self, "dropout_t_ns", d)
 
     @classmethod
     def from_positions_quaternions(cls, name: str, t_ns: Any, positions_xyz: Any,
                                    quaternions_xyzw: Any, frame_id: str = "",
-                                   source: str = "") -> "PoseStream":
+                                   source: str = "", dropout_t_ns: Any = ()) -> "PoseStream":
         """A stream from positions (N, 3) [m] and quaternions (N, 4) (x, y, z, w), normalised."""
         p = np.asarray(positions_xyz, dtype=float)
         q = np.asarray(quaternions_xyzw, dtype=float)
@@ -231,7 +246,7 @@ class PoseStream:
             R = quat_xyzw_to_matrix(q)
         except GeometryError as exc:
             raise InputError(f"pose stream '{name}': {exc}") from None
-        return cls(name, t_ns, from_rt(R, p), frame_id, source)
+        return cls(name, t_ns, from_rt(R, p), frame_id, source, np.asarray(dropout_t_ns, dtype=np.int64))
 
     def __len__(self) -> int:
         return int(self.t_ns.size)
@@ -254,15 +269,22 @@ class PoseStream:
         """(N, 4) body orientation in the mocap frame, (x, y, z, w) with w >= 0."""
         return matrix_to_quat_xyzw(self.T[:, :3, :3])
 
-    def interpolate(self, t_ns: Any, max_gap_s: float = DEFAULT_MAX_GAP_S
-                    ) -> tuple[np.ndarray, np.ndarray]:
+    def interpolate(self, t_ns: Any, max_gap_s: float = DEFAULT_MAX_GAP_S,
+                    max_dropout_s: float | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Same as :func:`interpolate` (``self`` is the stream)."""
-        return interpolate(self, t_ns, max_gap_s)
+        return interpolate(self, t_ns, max_gap_s, max_dropout_s)
 
-    def at(self, t_ns: int, max_gap_s: float = DEFAULT_MAX_GAP_S) -> np.ndarray:
+    @property
+    def period_ns(self) -> int:
+        """The median step between samples [ns] (0 for a single sample)."""
+        return int(np.median(np.diff(self.t_ns))) if len(self) > 1 else 0
+
+    def at(self, t_ns: int, max_gap_s: float = DEFAULT_MAX_GAP_S,
+           max_dropout_s: float | None = None) -> np.ndarray:
         """The pose (4, 4) ``T_M_body`` at ``t_ns``; InputError naming the stream and the reason
-        (before the start, after the end, or inside a gap longer than ``max_gap_s``)."""
-        T, valid = interpolate(self, np.array([t_ns]), max_gap_s)
+        (before the start, after the end, or inside a gap longer than ``max_gap_s`` - or, for a
+        gap left by dropped samples, than ``max_dropout_s``)."""
+        T, valid = interpolate(self, np.array([t_ns]), max_gap_s, max_dropout_s)
         if valid[0]:
             return T[0]
         t = int(t_ns)
@@ -275,6 +297,14 @@ class PoseStream:
             )
         i = int(np.searchsorted(self.t_ns, t, side="right")) - 1
         a, b = int(self.t_ns[i]), int(self.t_ns[i + 1])
+        dropped = int(np.sum((self.dropout_t_ns > a) & (self.dropout_t_ns < b)))
+        if dropped:
+            limit = _max_dropout(self, max_gap_s, max_dropout_s) / _NS
+            raise InputError(
+                f"{what}: no pose at t = {t} ns: it falls in a dropout of {dropped} samples, a gap "
+                f"of {(b - a) / _NS:.3f} s between samples at {a} and {b} ns, longer than "
+                f"max_dropout_s = {limit:g} s"
+            )
         raise InputError(
             f"{what}: no pose at t = {t} ns: it falls in a gap of {(b - a) / _NS:.3f} s between "
             f"samples at {a} and {b} ns, longer than max_gap_s = {max_gap_s} s"
@@ -292,19 +322,38 @@ class PoseStream:
                 f"pose stream '{self.name}': no samples in [{start_ns}, {end_ns}) ns; the stream "
                 f"covers [{self.start_ns}, {self.end_ns}] ns"
             )
-        return PoseStream(self.name, self.t_ns[keep], self.T[keep], self.frame_id, self.source)
+        d = self.dropout_t_ns
+        dk = np.ones(d.size, dtype=bool)
+        if start_ns is not None:
+            dk &= d >= int(start_ns)
+        if end_ns is not None:
+            dk &= d < int(end_ns)
+        return PoseStream(self.name, self.t_ns[keep], self.T[keep], self.frame_id, self.source, d[dk])
 
 
-def interpolate(stream: PoseStream, t_ns: Any, max_gap_s: float = DEFAULT_MAX_GAP_S
-                ) -> tuple[np.ndarray, np.ndarray]:
+def _max_dropout(stream: PoseStream, max_gap_s: float, max_dropout_s: float | None) -> int:
+    """The longest gap [ns] left by dropped samples that is bridged: ``max_dropout_s``, or by
+    default :data:`DROPOUT_SAMPLES` sample periods of the stream (at least ``max_gap_s``)."""
+    gap = _check_max_gap(max_gap_s)
+    if max_dropout_s is not None:
+        return max(gap, _check_max_gap(max_dropout_s))
+    return max(gap, DROPOUT_SAMPLES * stream.period_ns)
+
+
+def interpolate(stream: PoseStream, t_ns: Any, max_gap_s: float = DEFAULT_MAX_GAP_S,
+                max_dropout_s: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Poses of ``stream`` at times ``t_ns`` (integer ns, any shape S).
 
     Returns ``(T, valid)``: ``T`` of shape S + (4, 4) (``T_M_body``; NaN where not valid) and
     ``valid`` of shape S. A time is valid when it equals a sample's time, or lies strictly
-    between two consecutive samples at most ``max_gap_s`` apart. Times before the first or
-    after the last sample are never valid. Translation is interpolated linearly, rotation by
-    slerp (constant angular velocity along the shortest arc)."""
+    between two consecutive samples at most ``max_gap_s`` apart - or, when samples between
+    them were dropped as mocap dropouts (``stream.dropout_t_ns``), at most ``max_dropout_s``
+    apart (default: :data:`DROPOUT_SAMPLES` sample periods, a burst of occluded samples is
+    interpolated over, not a gap). Times before the first or after the last sample are never
+    valid. Translation is interpolated linearly, rotation by slerp (constant angular velocity
+    along the shortest arc)."""
     max_gap_ns = _check_max_gap(max_gap_s)
+    max_drop_ns = _max_dropout(stream, max_gap_s, max_dropout_s)
     t_in = np.asarray(t_ns)
     if t_in.size and not np.issubdtype(t_in.dtype, np.integer):
         if not np.all(np.isfinite(t_in)) or np.any(t_in != np.round(t_in)):
@@ -321,7 +370,12 @@ def interpolate(stream: PoseStream, t_ns: Any, max_gap_s: float = DEFAULT_MAX_GA
     lo = np.clip(i, 0, n - 1)
     hi = np.clip(i + 1, 0, n - 1)
     gap = ts[hi] - ts[lo]
-    between &= gap <= max_gap_ns
+    ok_gap = gap <= max_gap_ns
+    if stream.dropout_t_ns.size and max_drop_ns > max_gap_ns:
+        d = stream.dropout_t_ns
+        dropped = np.searchsorted(d, ts[hi], side="left") - np.searchsorted(d, ts[lo], side="right")
+        ok_gap |= (dropped > 0) & (gap <= max_drop_ns)
+    between &= ok_gap
     valid = exact | between
 
     out = np.full((t.size, 4, 4), np.nan)
@@ -338,6 +392,103 @@ def interpolate(stream: PoseStream, t_ns: Any, max_gap_s: float = DEFAULT_MAX_GA
         p = stream.T[a, :3, 3] + alpha * (stream.T[b, :3, 3] - stream.T[a, :3, 3])
         out[between] = from_rt(R, p)
     return out.reshape(t_in.shape + (4, 4)), valid.reshape(t_in.shape)
+
+
+# --------------------------------------------------------------------------------------------
+# what the streams tell about the MCS's own noise, and relative motion
+
+
+class MocapNoise(NamedTuple):
+    """The per-sample noise of one body's MCS poses: std per axis of the rotation [rad] and the
+    translation [m] (right perturbation, body frame), from ``samples`` second differences."""
+
+    rotation_rad: float
+    translation_m: float
+    samples: int
+
+    def covariance(self) -> np.ndarray:
+        """(6, 6) diagonal covariance of one sample's right perturbation (rotation first)."""
+        return np.diag([self.rotation_rad ** 2] * 3 + [self.translation_m ** 2] * 3)
+
+
+#: second differences are used only where the body moves slower than this [m/s]: a still
+#: target (a hold), a creeping robot - not the target being carried
+NOISE_MAX_SPEED_MPS = 0.1
+
+
+def mcs_noise(stream: PoseStream, max_speed_mps: float = NOISE_MAX_SPEED_MPS) -> MocapNoise:
+    """The per-sample noise of ``stream`` estimated from the stream itself, over its still or
+    steady stretches (a held target, a creeping robot: grouped by motion, never by stamps
+    alone): for independent noise ``x[i-1] - 2 x[i] + x[i+1]`` has variance ``6 sigma^2``
+    while the motion is smooth. Only consecutive, evenly spaced samples (no dropout between
+    them) moving slower than ``max_speed_mps`` count; the spread is a median absolute
+    deviation, so the rare jerk does not count. Zero for exact poses; ``samples`` 0 when no
+    stretch qualifies (then the noise is unknown: zeros)."""
+    t = stream.t_ns
+    if len(stream) < 3:
+        return MocapNoise(0.0, 0.0, 0)
+    dt = np.diff(t).astype(float)
+    step = float(np.median(dt))
+    even = np.abs(dt - step) <= 0.1 * step
+    ok = even[:-1] & even[1:]
+    p = stream.T[:, :3, 3]
+    R = stream.T[:, :3, :3]
+    speed = np.linalg.norm(p[2:] - p[:-2], axis=1) / (2 * step / _NS)
+    ok &= speed <= max_speed_mps
+    if not np.any(ok):
+        return MocapNoise(0.0, 0.0, 0)
+    d2p = (p[:-2] - 2 * p[1:-1] + p[2:])[ok]
+    w = so3_log(np.swapaxes(R[:-1], 1, 2) @ R[1:])  # (N-1, 3) rotation steps, body frame
+    d2r = (w[1:] - w[:-1])[ok]
+
+    def spread(x: np.ndarray) -> float:
+        mad = np.median(np.abs(x - np.median(x, axis=0)), axis=0) * 1.4826
+        return float(np.sqrt(np.mean(mad ** 2) / 6.0))
+
+    return MocapNoise(spread(d2r), spread(d2p), int(np.sum(ok)))
+
+
+def interpolation_weight(stream: PoseStream, t_ns: int) -> float:
+    """How much of one sample's noise an interpolated pose at ``t_ns`` keeps (its variance
+    factor ``a^2 + (1 - a)^2`` for the fraction ``a`` between the two samples; 1 on a sample
+    or outside)."""
+    ts = stream.t_ns
+    i = int(np.searchsorted(ts, int(t_ns), side="right")) - 1
+    if i < 0 or i >= len(ts) - 1 or ts[i] == t_ns:
+        return 1.0
+    a = (int(t_ns) - int(ts[i])) / float(ts[i + 1] - ts[i])
+    return a * a + (1 - a) * (1 - a)
+
+
+def relative_velocity(robot: PoseStream, target: PoseStream, t_ns: int, window_s: float,
+                      max_gap_s: float = DEFAULT_MAX_GAP_S,
+                      max_dropout_s: float | None = None) -> np.ndarray | None:
+    """(6,) how the target's pose in the robot frame ``T_R_T = T_M_R^-1 T_M_T`` changes at
+    ``t_ns``: the twist (rad/s, m/s; rotation first) with ``T_R_T(t + h) ~ T_R_T(t) exp(h xi)``,
+    the least-squares slope over the samples of both streams within ``+-window_s / 2`` (a
+    slope over many samples, not a difference of two: the MCS's noise averages out). None
+    when the streams do not cover the window."""
+    half = int(round(window_s * 0.5 * _NS))
+    lo, hi = int(t_ns) - half, int(t_ns) + half
+    times = np.unique(np.concatenate([
+        [lo, int(t_ns), hi], robot.t_ns[(robot.t_ns > lo) & (robot.t_ns < hi)],
+        target.t_ns[(target.t_ns > lo) & (target.t_ns < hi)]]).astype(np.int64))
+    T_mr, ok_r = interpolate(robot, times, max_gap_s, max_dropout_s)
+    T_mt, ok_t = interpolate(target, times, max_gap_s, max_dropout_s)
+    ok = ok_r & ok_t
+    k0 = int(np.flatnonzero(times == int(t_ns))[0])
+    if not ok[k0] or np.sum(ok) < 3:
+        return None
+    from rigcal.geometry.se3 import invert, se3_log
+
+    T_rt = np.einsum("nij,njk->nik", np.linalg.inv(T_mr[ok]), T_mt[ok])
+    y = se3_log(np.einsum("ij,njk->nik", invert(T_rt[int(np.sum(ok[:k0]))]), T_rt))
+    h = (times[ok] - int(t_ns)) / _NS
+    hc = h - h.mean()
+    denom = float(hc @ hc)
+    if denom <= 0:
+        return None
+    return (hc @ (y - y.mean(axis=0))) / denom
 
 
 # --------------------------------------------------------------------------------------------
@@ -499,8 +650,9 @@ def parse_pose_csv(text: str, name: str, source: str = "CSV", *, time_unit: str 
         raise InputError(f"{source}: every row has missing pose values; no samples left")
     data = np.array([rows[k][2] for k in kept], dtype=float)
     t = np.array([t_all[k] for k in kept], dtype=np.int64)
+    drops = np.array([t_all[k] for k, r in enumerate(rows) if not r[2]], dtype=np.int64)
     return PoseStream.from_positions_quaternions(name, t, data[:, :3], data[:, 3:], frame_id,
-                                                 source)
+                                                 source, drops)
 
 
 def read_pose_csv(path: str | os.PathLike[str], name: str | None = None, *,
@@ -622,9 +774,9 @@ class _Samples:
 
     def valid_samples(self, source: str) -> tuple[np.ndarray, np.ndarray]:
         """(t (N,), T (N, 4, 4)) of the valid samples in message order. Dropouts (a NaN or a
-        zero quaternion: a lost body) are skipped, counted and mentioned in a warning; an
-        infinite number, a position beyond :data:`MAX_POSITION_M` or a non-unit quaternion is
-        an InputError naming the message."""
+        zero quaternion: a lost body) are skipped (their stamps in ``self.dropped``), counted
+        and mentioned in a warning; an infinite number, a position beyond
+        :data:`MAX_POSITION_M` or a non-unit quaternion is an InputError naming the message."""
         v = np.array(self.numbers, dtype=float).reshape(-1, 7)
         _refuse_bad_numbers(v, self.t, self.what, source)
         T, valid = _matrices(v)
@@ -635,6 +787,7 @@ class _Samples:
         if not np.any(valid):
             raise InputError(f"{source}: {self.what}: no valid pose samples "
                              f"({dropped} dropped as invalid)")
+        self.dropped = np.array(self.t, dtype=np.int64)[~valid]
         return np.array(self.t, dtype=np.int64)[valid], T[valid]
 
     def stream(self, name: str, frame_id: str, source: str) -> PoseStream:
@@ -652,7 +805,7 @@ class _Samples:
             keep[same + 1] = False
             log.debug("%s: %s: dropped %d repeated samples", source, self.what, same.size)
             t, T = t[keep], T[keep]
-        return PoseStream(name, t, T, frame_id, source)
+        return PoseStream(name, t, T, frame_id, source, self.dropped)
 
 
 class _TfEdges(NamedTuple):
@@ -807,7 +960,7 @@ def read_tf_streams(path: str | os.PathLike[str],
         if not np.all(valid):
             log.info("%s: stream '%s': dropped %d of %d samples where a parent transform could "
                      "not be interpolated", source, name, int((~valid).sum()), t.size)
-        out[name] = PoseStream(name, t[valid], T[valid], chain[-1], source)
+        out[name] = PoseStream(name, t[valid], T[valid], chain[-1], source, base.dropout_t_ns)
     return out
 
 

@@ -404,13 +404,17 @@ MOCAP_NOISE_RATIO = 3.0
 MOCAP_MIN_MATCH = 0.5
 
 
-def mocap_verdict(fit, weak: Mapping[str, list[str]] = {}) -> Verdict:  # noqa: B006 - read only
+def mocap_verdict(fit, weak: Mapping[str, list[str]] = {},  # noqa: B006 - read only
+                  unseen: Mapping[str, str] = {}) -> Verdict:  # noqa: B006 - read only
     """The verdict of a motion-capture calibration from its per-sensor fit statistics
     (:class:`rigcal.problem.mocap.MocapFit`): ``noise`` (each sensor's residual scatter against
     its configured sigma), ``matches`` (per target, the share of measurements the fitted model
-    explains within 3 configured sigma), ``holds`` (how much the frames of one hold share their
-    errors: a note) and ``weak`` directions (a note)."""
-    noisy, poor, holds = [], [], []
+    explains within 3 configured sigma), ``time_offset`` (the clock offset between the MCS and
+    each sensor whose target moved relative to the robot: estimated, or - when it could not
+    be told from the pose and it matters - a failure), ``errors`` (the error components
+    estimated per sensor: a note), ``targets`` (configured targets never seen: a note) and
+    ``weak`` directions (a note)."""
+    noisy, poor, errors = [], [], []
     for name, f in fit.sensors.items():
         ratio = f.noise_sigma / f.sigma_nominal if f.sigma_nominal > 0 else float("inf")
         if ratio > MOCAP_NOISE_RATIO:
@@ -418,7 +422,7 @@ def mocap_verdict(fit, weak: Mapping[str, list[str]] = {}) -> Verdict:  # noqa: 
         for target, (within, total) in f.matches.items():
             if total and within / total < MOCAP_MIN_MATCH:
                 poor.append(f"{name} on {target}: {within} of {total} measurements within 3 sigma")
-        holds.append(f"{name} {1000 * f.hold_sigma[0]:.2g} mrad / {1000 * f.hold_sigma[1]:.2g} mm ({f.holds} holds)")
+        errors.append(mocap_error_text(f))
     checks = [
         Check("noise", FAIL, "residuals far above the configured noise: " + "; ".join(noisy)
               + " - a wrong match of the target, wrong intrinsics or a too small sigma")
@@ -427,14 +431,68 @@ def mocap_verdict(fit, weak: Mapping[str, list[str]] = {}) -> Verdict:  # noqa: 
                                 f"{n} {f.noise_sigma / f.sigma_nominal:.2f}" for n, f in fit.sensors.items())),
         Check("matches", FAIL, "targets the fitted model does not explain: " + "; ".join(poor))
         if poor else Check("matches", PASS, "every target's measurements explained"),
-        Check("holds", NOTE, "covariance includes a per-hold target-pose error shared by the "
-              "frames of a hold, std: "
-              + ", ".join(holds)),
     ]
+    offset = _offset_check(fit)
+    if offset is not None:
+        checks.append(offset)
+    checks.append(Check("errors", NOTE, "error components estimated from the residuals (the "
+                        "covariance holds them): " + "; ".join(errors)))
+    if unseen:
+        checks.append(Check("targets", NOTE, "; ".join(f"target '{t}' {why}" for t, why in unseen.items())))
     weak_items = {s: w for s, w in weak.items() if w}
     if weak_items:
         checks.append(Check("weak", NOTE, "; ".join(f"{s}: {', '.join(w)}" for s, w in weak_items.items())))
     return Verdict(tuple(checks))
+
+
+def mocap_error_text(f) -> str:
+    """One sensor's estimated error components in words (``MocapSensorFit``)."""
+    c = dict(f.components)
+    unit = f.unit
+    scale, shown = (1000.0, "mm") if unit == "m" else (1.0, "px")
+    parts = [f"{f.noise_sigma * scale:.3g} {shown} per point"]
+    view = c.get(f"view_{unit}", 0.0)
+    if view > 0:
+        parts.append(f"{view * scale:.2g} {shown} per keypoint and hold")
+    if c.get("capture_m", 0.0) > 0 or c.get("capture_rad", 0.0) > 0:
+        parts.append(f"{1000 * c.get('capture_m', 0.0):.2g} mm / {1000 * c.get('capture_rad', 0.0):.2g} mrad "
+                     "per capture")
+    if c.get("jitter_s", 0.0) > 0:
+        parts.append(f"{1000 * c['jitter_s']:.2g} ms stamp jitter")
+    if c.get("hold_m", 0.0) > 0 or c.get("hold_rad", 0.0) > 0:
+        parts.append(f"{1000 * c.get('hold_m', 0.0):.2g} mm / {1000 * c.get('hold_rad', 0.0):.2g} mrad per hold")
+    return f"{f.name} " + ", ".join(parts) + f" ({f.holds} holds)"
+
+
+def _offset_check(fit) -> Check | None:
+    """The ``time_offset`` check: estimated offsets (pass), offsets that matter but could not be
+    told from the pose (fail, with what to do), or offsets that could not be estimated and do
+    not matter (note). None when nothing moved relative to the robot in any kept frame."""
+    det, bad, idle = [], [], []
+    for name, f in fit.sensors.items():
+        status = getattr(f, "time_offset_status", "none")
+        if status == "determined":
+            det.append(f"{name} {1000 * f.time_offset_s:+.1f} +- {1000 * f.time_offset_std_s:.1f} ms")
+        elif status == "undetermined":
+            bad.append(f"{name} (std {1000 * f.time_offset_std_s:.0f} ms: it would widen the pose's "
+                       f"uncertainty {np.sqrt(f.time_offset_effect):.1f} times)")
+        elif status == "irrelevant":
+            idle.append(name)
+    if bad:
+        return Check("time_offset", FAIL,
+                     "the target moved relative to the robot in the kept frames, and the clock offset "
+                     "between the MCS and " + "; ".join(bad) + " could not be told from the pose: "
+                     "keep the robot still while the target is held (or vary its motion between holds), "
+                     "or synchronise the clocks and set options.time_offset_sigma_s to their accuracy"
+                     + (f"; estimated: {', '.join(det)}" if det else ""))
+    if det:
+        return Check("time_offset", PASS, "clock offset between the MCS and each sensor (its stamps minus "
+                     "the capture time): " + ", ".join(det)
+                     + (f"; {', '.join(idle)}: not determined, no effect" if idle else ""))
+    if idle:
+        return Check("time_offset", NOTE, f"clock offset of {', '.join(idle)} not determined; at the "
+                     "motion seen it hardly changes the result (included in the covariance)")
+    return None
 
 
 __all__ = [
@@ -449,6 +507,7 @@ __all__ = [
     "PairResiduals",
     "UNDETERMINED",
     "Verdict",
+    "mocap_error_text",
     "mocap_verdict",
     "noise_check",
     "noise_summary",

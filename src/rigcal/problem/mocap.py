@@ -33,7 +33,8 @@ its pose - the direct sensor-to-sensor coupling of overlapping views. Circle-boa
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from types import MappingProxyType
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -41,7 +42,7 @@ from scipy.spatial import cKDTree
 
 from rigcal.dataset import SensorKind
 from rigcal.errors import ConfigError, ConvergenceError, InputError, RigcalError
-from rigcal.geometry.se3 import invert
+from rigcal.geometry.se3 import adjoint, invert, se3_exp
 from rigcal.geometry.so3 import so3_log
 from rigcal.problem.numerics import single_threaded
 from rigcal.problem.residuals import MODEL_CAMERA, MODEL_POINT, MODEL_SURFACE
@@ -97,17 +98,44 @@ class TargetObservation:
     #: are not independent. "" = found from the MCS poses (consecutive observations of one
     #: target by one sensor whose ``T_robot_target`` stays within a few centimetres / degrees)
     hold: str = ""
+    #: (6,) how ``T_robot_target`` changes with time at ``t_ns``: the twist (rad/s, m/s;
+    #: rotation first) with ``T_robot_target(t_ns + h) ~ T_robot_target exp(h velocity)``, from
+    #: the MCS streams. None: not known (taken as still). With it, the clock offset between the
+    #: MCS and the sensor is estimated (:class:`MocapOptions` ``time_offset_sigma_s``)
+    velocity: np.ndarray | None = None
+    #: (6, 6) covariance of the MCS's error of ``T_robot_target`` at this capture (a right
+    #: perturbation, rotation first; rad^2, m^2): the MCS streams' own scatter. None: unknown
+    #: (the per-capture error is then estimated from the residuals alone)
+    pose_cov: np.ndarray | None = None
 
     def __post_init__(self) -> None:
-        T = np.array(self.T_robot_target, dtype=float)
-        m = np.array(self.measured, dtype=float)
+        where = f"observation of '{self.target}' by '{self.sensor}' at t = {self.t_ns} ns"
+        try:
+            T = np.array(self.T_robot_target, dtype=float)
+            m = np.array(self.measured, dtype=float)
+        except (TypeError, ValueError):
+            raise InputError(f"{where}: T_robot_target and measured must be arrays of numbers") from None
         if T.shape != (4, 4):
             raise InputError(f"observation of '{self.target}' by '{self.sensor}': T_robot_target must be 4x4")
+        if not np.all(np.isfinite(T)):
+            raise InputError(f"{where}: T_robot_target has non-finite entries (NaN or inf): the "
+                             "MCS pose at this time is not known")
         if m.ndim != 2 or m.shape[1] not in (2, 3) or m.shape[0] == 0:
             raise InputError(
                 f"observation of '{self.target}' by '{self.sensor}' at {self.t_ns}: measured must be "
                 f"(n, 3) points or (n, 2) pixels with n >= 1, got {m.shape}"
             )
+        if not np.all(np.isfinite(m)):
+            raise InputError(f"{where}: measured has non-finite entries (NaN or inf)")
+        for key, shape in (("velocity", (6,)), ("pose_cov", (6, 6))):
+            v = getattr(self, key)
+            if v is None:
+                continue
+            a = np.array(v, dtype=float)
+            if a.shape != shape or not np.all(np.isfinite(a)):
+                raise InputError(f"{where}: {key} must be finite numbers of shape {shape}, got {a.shape}")
+            a.setflags(write=False)
+            object.__setattr__(self, key, a)
         if self.keypoints_target is not None:
             k = np.array(self.keypoints_target, dtype=float)
             if k.shape != (m.shape[0], 3):
@@ -156,9 +184,22 @@ class MocapOptions:
     #: circle-board detections' noise [m] when board placements join the problem
     board_sigma_m: float = 0.01
     #: (rotation [rad], translation [m]): the least per-hold error of a still target's MCS pose
-    #: the uncertainty assumes (a few holds cannot show a small one): a Vicon-class system
-    #: tracks a still 0.5 m body to about 0.5 mrad and 0.25 mm from hold to hold
-    hold_sigma_floor: tuple[float, float] = (0.0005, 0.00025)
+    #: the uncertainty assumes. (0, 0), the default: the per-hold error is estimated from the
+    #: holds alone (a sensor needs ``min_holds`` of them); a floor makes the covariance wider
+    #: where the holds show less
+    hold_sigma_floor: tuple[float, float] = (0.0, 0.0)
+    #: a sensor whose targets were seen in fewer distinct holds (still poses of the target
+    #: apart by more than ``HOLD_DISTINCT_M`` or ``HOLD_DISTINCT_RAD``) is refused: its
+    #: per-hold error cannot be told from its pose
+    min_holds: int = 3
+    #: std [s] of the clock offset between the MCS and each sensor assumed before the data
+    #: (a prior): estimated per sensor when the target moved relative to the robot in the
+    #: kept frames (observations with ``velocity``); 0 = the clocks are synchronised, no offset
+    time_offset_sigma_s: float = 0.05
+    #: the offset counts as determined when its std is at most this [s]; otherwise, when an
+    #: offset the size of ``time_offset_sigma_s`` would widen the pose's uncertainty by more
+    #: than ``OFFSET_MATTERS`` (in variance), the result is flagged
+    time_offset_resolution_s: float = 0.001
 
     def __post_init__(self) -> None:
         if self.correspondences not in CORRESPONDENCES:
@@ -170,6 +211,12 @@ class MocapOptions:
         if len(floor) != 2 or not all(np.isfinite(v) and v >= 0 for v in floor):
             raise ConfigError("mocap options: hold_sigma_floor must be (rotation_rad, translation_m) >= 0")
         object.__setattr__(self, "hold_sigma_floor", floor)
+        if isinstance(self.min_holds, bool) or not int(self.min_holds) >= 1:
+            raise ConfigError(f"mocap options: min_holds must be an integer >= 1, got {self.min_holds!r}")
+        for key in ("time_offset_sigma_s", "time_offset_resolution_s"):
+            v = float(getattr(self, key))
+            if not (np.isfinite(v) and v >= 0):
+                raise ConfigError(f"mocap options: {key} must be a number >= 0 [s], got {getattr(self, key)!r}")
 
 
 def _check(sensors: Sequence[MocapSensor], observations: Sequence[TargetObservation], initial, templates):
@@ -243,12 +290,15 @@ def _target_blocks(observations, options) -> list[int]:
         return list(range(len(observations)))
     order = sorted(range(len(observations)), key=lambda i: (observations[i].target, observations[i].t_ns))
     out = [0] * len(observations)
-    current, last = -1, None
+    current, first = -1, None
     for i in order:
         o = observations[i]
-        if last is None or o.target != last.target or o.t_ns - last.t_ns > options.sync_tolerance_ns:
+        # one pose only for observations close in time *and* in MCS pose: stamps alone would
+        # merge a session whose stamps are wrong (1 ns apart) into one pose
+        if first is None or o.target != first.target or o.t_ns - first.t_ns > options.sync_tolerance_ns \
+                or not _same_pose(o.T_robot_target, first.T_robot_target, SHARED_POSE_M, SHARED_POSE_RAD):
             current += 1
-            last = o
+            first = o
         out[i] = current
     return out
 
@@ -280,7 +330,8 @@ def _build(sensors, observations, poses, surfaces, options, boards=None, block_p
         block = f"target:{k}"
         if k not in made:
             made[k] = block
-            start = block_poses.get(block, o.T_robot_target) if block_poses else o.T_robot_target
+            # held target poses are the observations' own (they change with a clock offset)
+            start = block_poses.get(block, o.T_robot_target) if block_poses and free else o.T_robot_target
             blocks.append(PoseBlock(block, start, (free,) * 6))
             if free:
                 prior_blocks.append(block)
@@ -291,7 +342,7 @@ def _build(sensors, observations, poses, surfaces, options, boards=None, block_p
         if o.keypoints_target is not None:
             pts, meas = o.keypoints_target, o.measured
         elif phase == "surface" and sensor.kind == SensorKind.LIDAR:
-            T_R_T = block_poses.get(block, o.T_robot_target) if block_poses else o.T_robot_target
+            T_R_T = block_poses.get(block, o.T_robot_target) if block_poses and free else o.T_robot_target
             pts, normals, keep = _closest_on_surface(o, sensor, poses[o.sensor], T_R_T, surfaces[o.target], options)
             meas, model = o.measured[keep], MODEL_SURFACE
         else:
@@ -362,6 +413,17 @@ def _settled(sol, poses, sensors, options: MocapOptions) -> tuple[bool, float, f
     return settled, worst_t, worst_r
 
 
+#: observations of one target by several sensors share one estimated target pose
+#: (``target_pose_sigma``) only when their MCS poses agree within these
+SHARED_POSE_M = 0.005
+SHARED_POSE_RAD = 0.005
+#: holds whose target poses (robot frame) are closer than these count as one view for
+#: ``MocapOptions.min_holds``
+HOLD_DISTINCT_M = 0.05
+HOLD_DISTINCT_RAD = np.radians(5.0)
+#: the clock offset matters when an offset of the assumed size widens a pose's covariance by
+#: more than this factor (largest generalised eigenvalue)
+OFFSET_MATTERS = 1.5
 #: consecutive observations of one target by one sensor belong to one hold while the target's
 #: pose in the robot frame moves less than these between them (used when ``hold`` is not set)
 HOLD_TRANSLATION_M = 0.03
@@ -372,6 +434,8 @@ MIN_VALID_PROJECTION = 0.5
 #: a still target's per-hold MCS error: a translation error t and a rotation error t / this
 #: (the markers' baseline: a Vicon body's markers span about half a metre)
 HOLD_BASELINE_M = 0.5
+_OFFSET_ITERATIONS = 8
+_OFFSET_SETTLED_S = 1e-5
 
 
 @dataclass(frozen=True, eq=False)  # holds arrays: compare by identity
@@ -406,6 +470,27 @@ class MocapSensorFit:
     start: str = "initial"
     #: (rotation [rad], translation [m]) std of the per-hold error of the target's pose
     hold_sigma: tuple[float, float] = (0.0, 0.0)
+    #: the estimated error components (see :mod:`rigcal.problem.mocap_noise`), readable:
+    #: ``capture_m`` / ``capture_rad`` (the MCS's error of the target pose per capture),
+    #: ``jitter_s`` (timing error of a frame's stamp), ``hold_m`` / ``hold_rad`` (per hold)
+    components: Mapping[str, float] = field(default_factory=dict)
+    #: degrees of freedom of the estimated components (``inf``: a floor, not an estimate)
+    components_dof: Mapping[str, float] = field(default_factory=dict)
+    #: the clock offset [s] between the MCS and the sensor (its stamps minus the capture time
+    #: on the MCS clock) and its std; NaN when nothing moved in its kept frames (no offset
+    #: could act) or offsets are not estimated
+    time_offset_s: float = float("nan")
+    time_offset_std_s: float = float("nan")
+    #: how much an unknown offset of the assumed size widens the covariance (largest
+    #: generalised eigenvalue of the covariance with the offset over the one without; 1: none)
+    time_offset_effect: float = 1.0
+    #: ``"none"`` (nothing moved in its kept frames, or offsets not estimated), ``"determined"``
+    #: (std at most ``time_offset_resolution_s``), ``"irrelevant"`` (not determined, but an
+    #: offset of the assumed size would hardly change the pose) or ``"undetermined"`` (not
+    #: determined and it matters: the result should be flagged)
+    time_offset_status: str = "none"
+    #: distinct holds (views) behind the estimate
+    views: int = 0
 
     @property
     def match_fraction(self) -> float:
@@ -419,6 +504,9 @@ class MocapFit:
 
     result: CalibrationResult
     sensors: Mapping[str, MocapSensorFit]
+    #: the observations as fitted: ``T_robot_target`` at each sensor's capture time (its clock
+    #: offset applied, :func:`shift_observation`), in the order given
+    observations: tuple = ()
 
 
 def hold_labels(observations: Sequence[TargetObservation]) -> list[str]:
@@ -504,181 +592,264 @@ def _better_start(sensor: MocapSensor, obs, T_a: np.ndarray, T_b: np.ndarray, su
     return T_b if costs[1] < 0.999 * costs[0] else None
 
 
-def _hold_moments(Js, r, obs_of_row, hold_of_row, Ads, C):
-    """Within-hold noise and the between-hold error's moment equation of one sensor (its rows).
-
-    ``Js`` (n, 6): the residuals' Jacobian w.r.t. the sensor's pose; ``r`` (n,): the whitened
-    residuals; ``Ads[i]``: the adjoint of ``T_sensor_target`` of observation i (a right
-    perturbation ``delta`` of the target's pose moves the residuals by ``-Js Ad delta``);
-    ``C = (Js' Js)^-1``. Every hold g has its own error ``delta_g`` of the target's pose shared
-    by its frames (the MCS error of the still target, the extractor's view of it), with
-    ``cov(delta_g) = lam * diag(I3 / HOLD_BASELINE_M^2, I3)``.
-
-    Returns ``(sigma_w^2, [M_g], data)``: the within-hold variance (the residuals left after
-    fitting every hold's own ``delta_g``), ``M_g = Js_g' Jd_g`` per hold (the sandwich's
-    pieces), and ``(z, A0, K)``: the residuals in the holds' pose directions (after the
-    sensor's own fit) with ``cov(z) = sigma_w^2 A0 + lam K`` - None with fewer than two holds."""
-    holds = sorted(set(hold_of_row))
-    Jd = np.zeros_like(Js)
-    for i in set(obs_of_row):
-        rows = obs_of_row == i
-        Jd[rows] = -Js[rows] @ Ads[i]
-    Dh = np.sqrt(np.r_[np.full(3, 1.0 / HOLD_BASELINE_M ** 2), np.ones(3)])
-    n = len(r)
-    projs, Ms, within_sq, within_dof, q, a, bases = [], [], 0.0, 0, 0.0, 0.0, []
-    for g in holds:
-        rows = hold_of_row == g
-        Jg = Jd[rows]
-        G = Jg.T @ Jg
-        pinv = np.linalg.pinv(G, rcond=1e-9)
-        rank = int(np.linalg.matrix_rank(G, tol=1e-9 * max(float(np.abs(G).max()), 1e-300)))
-        fitted = Jg @ (pinv @ (Jg.T @ r[rows]))
-        U, sv, _ = np.linalg.svd(Jg, full_matrices=False)
-        basis = np.zeros((n, rank))
-        basis[rows] = U[:, :rank]
-        bases.append(basis)
-        within_sq += float(np.sum((r[rows] - fitted) ** 2))
-        within_dof += int(np.sum(rows)) - rank
-        q += float(np.sum(fitted ** 2))
-        Asg = Js[rows].T @ Js[rows]
-        a += rank - float(np.trace(C @ Asg))
-        projs.append((rows, Jg, pinv))
-        Ms.append(Js[rows].T @ Jg)
-    s2w = within_sq / within_dof if within_dof > 0 else float(np.sum(r * r)) / max(n - 6, 1)
-    if len(holds) < 2:
-        return s2w, Ms, None
-    b = 0.0
-    for g in holds:  # the hold error of hold g, residualised, seen in every hold's projector
-        X = Jd * (hold_of_row == g)[:, None] * Dh[None, :]
-        X = X - Js @ (C @ (Js.T @ X))
-        for rows, Jg, pinv in projs:
-            Y = Jg @ (pinv @ (Jg.T @ X[rows]))
-            b += float(np.sum(Y ** 2))
-    E = np.hstack(bases)
-    F = E - Js @ (C @ (Js.T @ E))  # (I - H) E: the residuals seen in the holds' pose directions
-    A0 = F.T @ F
-    w, V = np.linalg.eigh(0.5 * (A0 + A0.T))
-    keep = w > 1e-9 * max(float(w.max()), 1e-300)
-    V = V[:, keep]
-    z = V.T @ (F.T @ r)
-    K = np.zeros((V.shape[1], V.shape[1]))
-    for g in holds:
-        X = V.T @ (F.T @ (Jd * (hold_of_row == g)[:, None] * Dh[None, :]))
-        K += X @ X.T
-    return s2w, Ms, (z, V.T @ A0 @ V, K)
+def _sqrt_psd(S: np.ndarray) -> np.ndarray:
+    """``L`` with ``L L' = S`` for a symmetric positive semi-definite ``S``."""
+    w, V = np.linalg.eigh(0.5 * (S + S.T))
+    return V * np.sqrt(np.clip(w, 0.0, None))
 
 
-def _fit_statistics(prob: Problem, sol, sensors, observations, holds, options: MocapOptions):
-    """Per-sensor noise (within-hold variance component) and hold errors at the solution:
-    returns (reduced chi2 per sensor, hold inflation per sensor, hold sigmas per sensor, joint
-    covariance function)."""
-    from rigcal.geometry.se3 import adjoint
+def _body_shape() -> np.ndarray:
+    """(6, 6) default shape of one MCS body's pose error: translation variance 1, rotation
+    variance 1 / HOLD_BASELINE_M^2 (a marker error over the markers' baseline)."""
+    return np.diag([1.0 / HOLD_BASELINE_M ** 2] * 3 + [1.0] * 3)
+
+
+def _default_shape(T_robot_target: np.ndarray) -> np.ndarray:
+    """(6, 6) default shape of the error of ``T_robot_target`` (target right perturbation) when
+    the target body and the robot body each err like :func:`_body_shape`: the robot's error
+    reaches the target through the lever arm between them."""
+    D = _body_shape()
+    Ad = adjoint(invert(T_robot_target))
+    return D + Ad @ D @ Ad.T
+
+
+def _rows(prob: Problem, sol):
+    """Whitened residuals (m,), dense Jacobian (m, n_free), the layout, and per row the
+    observation index (-1: not an observation of a mocap sensor) and the sensor name."""
     from rigcal.problem.solver import _evaluate, prepare
 
     layout = prepare(prob)
     T = np.stack([sol.poses[p.name] for p in prob.poses])
     r, J, _, _ = _evaluate(prob, layout, T, "linear", 1.0, True)
     J = J.toarray() if hasattr(J, "toarray") else np.asarray(J)
-    m_obs = layout.m_obs
     row_obs, row_sensor = [], []
     for b in prob.observations:
         ours = b.label.startswith(ROBOT)
         row_obs.append(np.repeat(np.where(ours, b.board, -1), b.dim))
         row_sensor += [b.sensor if ours else None] * (b.size * b.dim)
-    row_obs = np.concatenate(row_obs + [np.full(len(r) - m_obs, -1)])
-    row_sensor = np.array(row_sensor + [None] * (len(r) - m_obs), dtype=object)
-    scale, infl, hold_sigma, blocks, stats, determined = {}, {}, {}, {}, {}, {}
-    for s in sensors:
-        rows = row_sensor == s.name
-        cols = layout.cols[layout.index[s.name]]
-        cols = cols[cols >= 0]
-        Js, rs = J[np.ix_(rows, cols)], r[rows]
-        obs_rows = row_obs[rows]
-        hold_rows = np.array([holds[i] for i in obs_rows], dtype=object)
-        Ads = {int(i): adjoint(invert(sol.poses[s.name]) @ observations[int(i)].T_robot_target)
-               for i in set(obs_rows.tolist())}
-        A = Js.T @ Js
-        wA = np.linalg.eigvalsh(0.5 * (A + A.T)) if A.size else np.zeros(1)
-        determined[s.name] = bool(np.all(np.isfinite(wA)) and wA.max() > 0 and wA.min() > 1e-12 * wA.max())
-        Cs = np.linalg.pinv(A, rcond=1e-12)
-        s2w, Ms, eq = _hold_moments(Js, rs, obs_rows, hold_rows, Ads, Cs)
-        scale[s.name] = s2w if s2w > 0 else 1.0
-        stats[s.name] = (cols, A, Cs, None, Ms, eq, len(set(obs_rows.tolist())))
-    # the per-hold error's variance lam by maximum likelihood from the sensor's residuals in its
-    # holds' pose directions, at least the MCS's own accuracy (options.hold_sigma_floor)
-    from scipy.optimize import minimize_scalar
-    from scipy.stats import chi2, f as f_dist
+    extra = len(r) - layout.m_obs
+    row_obs = np.concatenate(row_obs + [np.full(extra, -1)])
+    row_sensor = np.array(row_sensor + [None] * extra, dtype=object)
+    return r, J, layout, row_obs, row_sensor
 
-    def ml(data) -> tuple[float, float]:
-        """(lam, Fisher information) by maximum likelihood from ``[((z, A0, K), s2)]``."""
-        if not data:
-            return 0.0, 0.0
 
-        def nll(lam: float) -> float:
-            out = 0.0
-            for (z, A0, K), s2 in data:
-                S = s2 * A0 + lam * K
-                sign, logdet = np.linalg.slogdet(S)
-                out += 0.5 * (logdet + float(z @ np.linalg.solve(S, z))) if sign > 0 else np.inf
-            return out
+@dataclass
+class _Linear:
+    """One sensor's rows of the problem linearised at the solution."""
 
-        scale_k = sum(np.trace(K) for (_, _, K), _ in data)
-        hi = max(float(sum(z @ z for (z, _, _), _ in data) / max(scale_k, 1e-300)), 1e-18)
-        res = minimize_scalar(lambda t: nll(np.exp(t)), bounds=(np.log(hi) - 30, np.log(hi) + 5),
-                              method="bounded")
-        lam = float(np.exp(res.x)) if res.fun < nll(0.0) else 0.0
-        info = 0.0
-        for (z, A0, K), s2 in data:
-            SK = np.linalg.solve(s2 * A0 + lam * K, K)
-            info += 0.5 * float(np.sum(SK * SK.T))
-        return lam, info
+    r: np.ndarray  # (n,) whitened residuals
+    Js: np.ndarray  # (n, 6) w.r.t. the sensor's pose (right perturbation)
+    cols: np.ndarray  # the sensor's free columns in the problem
+    frames: list[tuple[int, np.ndarray, np.ndarray]]  # (observation, row mask, Jd (n_f, 6))
+    j_offset: np.ndarray | None  # (n,) w.r.t. the clock offset [s]; None: nothing moved
 
-    floor_r, floor_t = options.hold_sigma_floor
-    lam_floor = max(floor_t ** 2, (floor_r * HOLD_BASELINE_M) ** 2)
-    # every sensor its own per-hold error: the MCS's and its extraction's (a camera's corners
-    # err alike in every frame of one view), estimated from its own holds
-    chosen = {}
-    for n in stats:
-        lam, info = ml([(stats[n][5], scale[n])] if stats[n][5] is not None else [])
-        if lam <= lam_floor:
-            chosen[n] = (lam_floor, 1.0)  # a known least value, not an estimate: no widening
+
+def _linearise(r, J, layout, row_obs, row_sensor, name: str, T_R_S: np.ndarray,
+               observations: Sequence[TargetObservation], with_offset: bool) -> _Linear:
+    rows = row_sensor == name
+    cols = layout.cols[layout.index[name]]
+    cols = cols[cols >= 0]
+    Js, rs = J[np.ix_(rows, cols)], r[rows]
+    obs_rows = row_obs[rows]
+    frames = []
+    j = np.zeros(len(rs))
+    T_S_R = invert(T_R_S)
+    for i in sorted(set(obs_rows.tolist())):
+        m = obs_rows == i
+        Jd = -Js[m] @ adjoint(T_S_R @ observations[i].T_robot_target)
+        frames.append((i, m, Jd))
+        v = observations[i].velocity
+        if v is not None:
+            # time_offset = stamp - capture time: the pose at capture is T(t - offset)
+            j[m] = -(Jd @ v)
+    moved = with_offset and bool(np.any(j != 0.0))
+    return _Linear(rs, Js, cols, frames, j if moved else None)
+
+
+def _loadings(lin: _Linear, observations: Sequence[TargetObservation], holds: Sequence[str]):
+    """The random-effect loadings of one sensor (see :mod:`rigcal.problem.mocap_noise`) and
+    whether the per-capture shape came from the MCS streams (``pose_cov``)."""
+    n = len(lin.r)
+    obs = [observations[i] for i, _, _ in lin.frames]
+    streams = all(o.pose_cov is not None for o in obs) and any(np.any(o.pose_cov != 0) for o in obs)
+    cap = np.zeros((n, 6 * len(lin.frames)))
+    jit = np.zeros((n, len(lin.frames)))
+    for k, ((i, m, Jd), o) in enumerate(zip(lin.frames, obs)):
+        S = o.pose_cov if streams else _default_shape(o.T_robot_target)
+        cap[m, 6 * k: 6 * k + 6] = Jd @ _sqrt_psd(S)
+        if o.velocity is not None:
+            jit[m, k] = Jd @ o.velocity
+    # the still target's error per hold (its MCS body, what the extractor makes of the view):
+    # rotation [rad] and translation [m] each with its own variance (a lidar's plate seen at a
+    # slant errs in tilt, an MCS body in both)
+    hold_ids = sorted({holds[i] for i, _, _ in lin.frames})
+    hold_r = np.zeros((n, 3 * len(hold_ids)))
+    hold_t = np.zeros((n, 3 * len(hold_ids)))
+    for (i, m, Jd) in lin.frames:
+        g = hold_ids.index(holds[i])
+        hold_r[m, 3 * g: 3 * g + 3] = Jd[:, :3]
+        hold_t[m, 3 * g: 3 * g + 3] = Jd[:, 3:]
+    loads = {"capture": cap, "hold_rot": hold_r, "hold": hold_t}
+    if np.any(jit != 0.0):
+        loads["jitter"] = jit
+    return loads, streams
+
+
+def _view_groups(lin: _Linear, observations: Sequence[TargetObservation], holds: Sequence[str]
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """The ``view`` component's rows: ``groups`` (n,), one keypoint coordinate (by its
+    target-frame position) in every frame of one hold (-1: rows without correspondences), and
+    ``pose`` (n, k): per hold, an orthonormal basis of the directions in which a change of the
+    sensor's pose moves that hold's keypoint coordinates. The view component is a per-keypoint
+    error with those directions taken out (loaded with the opposite sign): an error of a hold
+    that looks like a pose error is the hold components' (it moves the estimate as one), the
+    rest the view's (it does not) - so the two cannot trade one for the other."""
+    out = np.full(len(lin.r), -1)
+    ids: dict[tuple, int] = {}
+    hold_of_group: list[str] = []
+    for i, m, _ in lin.frames:
+        o = observations[i]
+        if o.keypoints_target is None:
             continue
-        # estimated from few holds (nu degrees of freedom, from its Fisher information): the
-        # hold part widened so that a 6-DOF region holds the truth as often as it says
-        nu = 2.0 * lam ** 2 * info
-        small = float(6.0 * f_dist.ppf(0.95, 6, nu) / chi2.ppf(0.95, 6)) if 0.5 < nu < 1e6 else 1.0
-        chosen[n] = (lam, small)
+        rows = np.flatnonzero(m)
+        dim = len(rows) // len(o.keypoints_target)
+        if dim * len(o.keypoints_target) != len(rows):
+            continue  # some keypoints were dropped (max_correspondence_sigma): no grouping
+        keys = np.round(o.keypoints_target, 6)
+        for j, row in enumerate(rows):
+            key = (holds[i], *keys[j // dim], j % dim)
+            if key not in ids:
+                ids[key] = len(ids)
+                hold_of_group.append(holds[i])
+            out[row] = ids[key]
+    if not ids:
+        return out, np.zeros((len(lin.r), 0))
+    # the mean Jacobian of every group (its rows are the same coordinate in each frame)
+    sums = np.zeros((len(ids), 6))
+    counts = np.zeros(len(ids))
+    g = out >= 0
+    np.add.at(sums, out[g], lin.Js[g])
+    np.add.at(counts, out[g], 1.0)
+    mean = sums / np.maximum(counts, 1.0)[:, None]
+    hold_names = sorted(set(hold_of_group))
+    groups_of = {h: np.array([k for k, hh in enumerate(hold_of_group) if hh == h]) for h in hold_names}
+    cols = []
+    for h in hold_names:
+        idx = groups_of[h]
+        U, sv, _ = np.linalg.svd(mean[idx], full_matrices=False)
+        keep = sv > 1e-9 * max(float(sv.max()), 1e-300)
+        Q = np.zeros((len(ids), int(keep.sum())))
+        Q[idx] = U[:, keep]
+        cols.append(Q)
+    Qall = np.hstack(cols)  # (groups, k)
+    pose = np.zeros((len(lin.r), Qall.shape[1]))
+    pose[g] = Qall[out[g]]
+    return out, pose
+
+
+@dataclass
+class _SensorStats:
+    cols: np.ndarray
+    cov: np.ndarray  # (6, 6) reported
+    naive: np.ndarray
+    s2: float
+    comp: object  # mocap_noise.Components
+    noise: dict[str, float]
+    hold_sigma: tuple[float, float]
+    offset_std: float
+    offset_effect: float
+    determined: bool
+
+
+def _sensor_statistics(lin: _Linear, observations, holds, options: MocapOptions) -> _SensorStats:
+    from rigcal.problem.mocap_noise import effective_dof, fit_components, sandwich, widening
+
+    loads, streams = _loadings(lin, observations, holds)
+    X = lin.Js if lin.j_offset is None else np.column_stack([lin.Js, lin.j_offset])
+    floor_r, floor_t = options.hold_sigma_floor
+    floors = {"hold": floor_t ** 2, "hold_rot": floor_r ** 2}
+    if streams:
+        floors["capture"] = 1.0  # the MCS streams' own scatter: a known least value
+    groups, view_pose = _view_groups(lin, observations, holds)
+    if view_pose.shape[1]:
+        loads["view_pose"] = view_pose
+    comp = fit_components(lin.r, X, loads, floors, groups)
+    prior = None
+    if lin.j_offset is not None:
+        prior = np.r_[np.zeros(6), 1.0 / options.time_offset_sigma_s]
+    parts = sandwich(X, loads, comp, prior, groups)
+    # the components were estimated from few groups: the covariance widened so that a 6-DOF
+    # region holds the truth as often as it says (Satterthwaite's degrees of freedom)
+    k = widening(effective_dof(parts, comp, 6))
+    cov_all = k * sum(v for c, v in parts.items() if c != "prior") + parts.get("prior", 0.0)
+    cov = cov_all[:6, :6]
+    offset_std, effect = float("nan"), 1.0
+    if lin.j_offset is not None:
+        offset_std = float(np.sqrt(max(cov_all[6, 6], 0.0)))
+        fixed_parts = sandwich(lin.Js, loads, comp, None, groups)
+        fixed = widening(effective_dof(fixed_parts, comp, 6)) * sum(fixed_parts.values())
+        try:
+            L = np.linalg.cholesky(fixed + 1e-18 * np.eye(6) * max(float(np.trace(fixed)), 1e-300))
+            Li = np.linalg.inv(L)
+            effect = float(np.linalg.eigvalsh(Li @ cov @ Li.T).max())
+        except np.linalg.LinAlgError:
+            effect = float("inf")
+    A = lin.Js.T @ lin.Js
+    wA = np.linalg.eigvalsh(0.5 * (A + A.T)) if A.size else np.zeros(1)
+    determined = bool(np.all(np.isfinite(wA)) and wA.max() > 0 and wA.min() > 1e-12 * wA.max())
+    obs = [observations[i] for i, _, _ in lin.frames]
+    cap = comp.get("capture")
+    if streams:
+        cap_t = float(np.sqrt(cap * np.mean([np.trace(o.pose_cov[3:, 3:]) / 3 for o in obs])))
+        cap_r = float(np.sqrt(cap * np.mean([np.trace(o.pose_cov[:3, :3]) / 3 for o in obs])))
+    else:
+        cap_t, cap_r = float(np.sqrt(cap)), float(np.sqrt(cap)) / HOLD_BASELINE_M
+    hold_t = float(np.sqrt(comp.get("hold")))
+    hold_r = float(np.sqrt(comp.get("hold_rot")))
+    noise = {"capture_m": cap_t, "capture_rad": cap_r, "jitter_s": float(np.sqrt(comp.get("jitter"))),
+             "hold_m": hold_t, "hold_rad": hold_r,
+             "view": float(np.sqrt(comp.get("view")))}
+    return _SensorStats(lin.cols, cov, np.zeros((6, 6)), comp.s2, comp, noise,
+                        (hold_r, hold_t), offset_std, effect, determined)
+
+
+def _statistics(prob: Problem, sol, sensors, observations, holds, options: MocapOptions,
+                offsets: Mapping[str, bool]):
+    """Per-sensor noise components, covariances (and clock-offset std) at the solution, and a
+    function giving the joint covariance of a list of sensors."""
+    r, J, layout, row_obs, row_sensor = _rows(prob, sol)
+    stats: dict[str, _SensorStats] = {}
     for s in sensors:
-        cols, A, Cs, _, Ms, eq, n_obs = stats[s.name]
-        tt2, small = chosen[s.name]
-        tr2 = tt2 / HOLD_BASELINE_M ** 2
-        naive = scale[s.name] * Cs
-        Psi = np.diag([tr2] * 3 + [tt2] * 3)
-        # one hold: nothing to estimate its error from, and its frames may be copies of each
-        # other (counted as one)
-        copies = 1.0 if eq is not None else max(1.0, float(n_obs))
-        meat = copies * scale[s.name] * A + small * sum(M @ Psi @ M.T for M in Ms)
-        cov = Cs @ meat @ Cs
-        w_, V_ = np.linalg.eigh(0.5 * (cov + cov.T))
-        cov = (V_ * np.clip(w_, 0.0, None)) @ V_.T  # rounding leaves tiny negative ones
-        infl[s.name] = float(np.trace(cov) / np.trace(naive)) if np.trace(naive) > 0 else 1.0
-        hold_sigma[s.name] = (float(np.sqrt(tr2)), float(np.sqrt(tt2)))
-        blocks[s.name] = (cols, cov, naive)
-    # the joint covariance: the full one with every sensor's rows weighted by its own noise,
-    # each sensor's block replaced by its hold-aware one and cross terms scaled alike
-    w = np.ones(len(r))
-    for s in sensors:
-        w[row_sensor == s.name] = 1.0 / np.sqrt(scale[s.name])
-    Jw = J * w[:, None]
-    C = np.linalg.pinv(Jw.T @ Jw, rcond=1e-12)
-    D = np.ones(C.shape[0])
-    for name, (cols, cov, naive) in blocks.items():
-        D[cols] = np.sqrt(max(infl[name], 1.0))
-    C = D[:, None] * C * D[None, :]
-    for name, (cols, cov, naive) in blocks.items():
-        C[np.ix_(cols, cols)] = cov
+        lin = _linearise(r, J, layout, row_obs, row_sensor, s.name, sol.poses[s.name], observations,
+                         offsets.get(s.name, False))
+        st = _sensor_statistics(lin, observations, holds, options)
+        st.naive = sol.pose_covariance(s.name)
+        stats[s.name] = st
+    coupled = any(p.free != (False,) * 6 for p in prob.poses if p.name.startswith("target:")) \
+        or any(not b.label.startswith(ROBOT) for b in prob.observations)
+    C = None
+    if coupled:
+        # the joint covariance: the full one with every sensor's rows weighted by its own noise,
+        # each sensor's block replaced by its own and cross terms scaled alike
+        w = np.ones(len(r))
+        for s in sensors:
+            w[row_sensor == s.name] = 1.0 / np.sqrt(stats[s.name].s2)
+        Jw = J * w[:, None]
+        C = np.linalg.pinv(Jw.T @ Jw, rcond=1e-12)
+        D = np.ones(C.shape[0])
+        for name, st in stats.items():
+            base = np.trace(C[np.ix_(st.cols, st.cols)])
+            D[st.cols] = np.sqrt(max(np.trace(st.cov) / base, 1.0)) if base > 0 else 1.0
+        C = D[:, None] * C * D[None, :]
+        for name, st in stats.items():
+            C[np.ix_(st.cols, st.cols)] = st.cov
 
     def joint(names):
+        if C is None:
+            out = np.zeros((6 * len(names), 6 * len(names)))
+            for k, n in enumerate(names):
+                out[6 * k: 6 * k + 6, 6 * k: 6 * k + 6] = stats[n].cov
+            return out
         cols = np.concatenate([layout.cols[layout.index[n]] for n in names])
         out = np.zeros((len(cols), len(cols)))
         idx = np.flatnonzero(cols >= 0)
@@ -687,16 +858,99 @@ def _fit_statistics(prob: Problem, sol, sensors, observations, holds, options: M
             out[np.ix_(idx, idx)] = C[np.ix_(c, c)]
         return out
 
-    return scale, infl, hold_sigma, joint, determined
+    return stats, joint
 
 
-def _matches(prob: Problem, sol, sensors, observations, scale) -> dict[str, dict[str, tuple[int, int]]]:
+def shift_observation(obs: TargetObservation, time_offset_s: float) -> TargetObservation:
+    """``obs`` with ``T_robot_target`` at the capture time when the sensor stamps its frames
+    ``time_offset_s`` later than the MCS's clock: ``T(t - offset) ~ T(t) exp(-offset velocity)``
+    (unchanged without a velocity or a zero offset)."""
+    from dataclasses import replace
+
+    if obs.velocity is None or time_offset_s == 0.0:
+        return obs
+    return replace(obs, T_robot_target=obs.T_robot_target @ se3_exp(-time_offset_s * obs.velocity))
+
+
+def _offset_steps(prob, sol, sensors, observations, offsets, options: MocapOptions) -> dict[str, float]:
+    """One Gauss-Newton step of every moving sensor's clock offset jointly with its pose (the
+    pose is then solved again with the offset applied): least squares with the residuals
+    weighted by their scatter and the offset's prior ``N(0, time_offset_sigma_s^2)``."""
+    r, J, layout, row_obs, row_sensor = _rows(prob, sol)
+    out = {}
+    for s in sensors:
+        if s.name not in offsets:
+            continue
+        lin = _linearise(r, J, layout, row_obs, row_sensor, s.name, sol.poses[s.name], observations, True)
+        if lin.j_offset is None:
+            out[s.name] = 0.0
+            continue
+        X = np.column_stack([lin.Js, lin.j_offset])
+        s2 = max(float(lin.r @ lin.r) / max(len(lin.r) - 7, 1), 1e-300)
+        A = X.T @ X / s2
+        A[6, 6] += 1.0 / options.time_offset_sigma_s ** 2
+        g = X.T @ lin.r / s2
+        g[6] += offsets[s.name] / options.time_offset_sigma_s ** 2
+        try:
+            step = -np.linalg.solve(A, g)
+        except np.linalg.LinAlgError:
+            step = -np.linalg.pinv(A) @ g
+        out[s.name] = float(step[6])
+    return out
+
+
+def _offset_status(estimated: bool, std: float, effect: float, options: MocapOptions) -> str:
+    if not estimated:
+        return "none"
+    if std <= options.time_offset_resolution_s:
+        return "determined"
+    return "undetermined" if effect > OFFSET_MATTERS else "irrelevant"
+
+
+def distinct_holds(observations: Sequence[TargetObservation], holds: Sequence[str]) -> int:
+    """How many distinct views the holds give: holds whose (first) target poses in the robot
+    frame lie within HOLD_DISTINCT_M and HOLD_DISTINCT_RAD of an earlier one count once."""
+    firsts: dict[str, np.ndarray] = {}
+    for o, h in zip(observations, holds):
+        firsts.setdefault(h, o.T_robot_target)
+    views: list[np.ndarray] = []
+    for T in firsts.values():
+        if not any(_same_pose(T, V, HOLD_DISTINCT_M, HOLD_DISTINCT_RAD) for V in views):
+            views.append(T)
+    return len(views)
+
+
+def _check_holds(sensors, observations, holds, options: MocapOptions) -> None:
+    """ConvergenceError naming the first sensor seen in fewer than ``options.min_holds``
+    distinct holds: its per-hold error cannot be told from its pose."""
+    need = int(options.min_holds)
+    for s in sensors:
+        mine = [(o, h) for o, h in zip(observations, holds) if o.sensor == s.name]
+        n = distinct_holds([o for o, _ in mine], [h for _, h in mine])
+        if n >= need:
+            continue
+        raw = len({h for _, h in mine})
+        same = f" ({raw} holds, but at nearly the same target pose)" if raw > n else ""
+        what = "image" if s.kind == SensorKind.CAMERA else "field of view"
+        raise ConvergenceError(
+            f"sensor '{s.name}': its measurements do not determine its pose: its targets were seen "
+            f"in {n} distinct hold{'s' if n != 1 else ''}{same}, and at least {need} are needed to "
+            f"tell the error of a hold (the MCS's and the extractor's, shared by its frames) from "
+            f"the sensor's pose: hold the target {need - n} more time{'s' if need - n != 1 else ''} "
+            f"in its {what}, at other distances, places in the {what} and tilts (more than "
+            f"{100 * HOLD_DISTINCT_M:.0f} cm / {np.degrees(HOLD_DISTINCT_RAD):.0f} deg apart)",
+            sensor=s.name)
+
+
+def _matches(prob: Problem, sol, sensors, observations, whitened) -> dict[str, dict[str, tuple[int, int]]]:
+    """Per sensor and target, (measurements within 3 configured sigma, measurements);
+    ``whitened[sensor]``: the sigma ``sol``'s residuals were whitened by, over the configured."""
     out: dict[str, dict[str, list[int]]] = {s.name: {} for s in sensors}
     for b, raw in zip(prob.observations, sol.residuals):
         if not b.label.startswith(ROBOT):
             continue
-        lim = 3.0 * np.sqrt(b.dim)  # residuals whitened by the configured sigma
-        e = np.linalg.norm(raw, axis=1)
+        lim = 3.0 * np.sqrt(b.dim)
+        e = np.linalg.norm(raw, axis=1) * whitened.get(b.sensor, 1.0)
         for i, ok in zip(b.board, e <= lim):
             t = observations[int(i)].target
             c = out[b.sensor].setdefault(t, [0, 0])
@@ -751,6 +1005,8 @@ def calibrate_mocap_fit(
     surfaces = {k: v if isinstance(v, TargetSurface) else TargetSurface.of_template(v, k)
                 for k, v in (templates or {}).items()}
     _check(sensors, observations, initial, surfaces)
+    holds = hold_labels(observations)
+    _check_holds(sensors, observations, holds, options)
     if boards is not None:
         unknown = [n for n in boards.names if n not in {s.name for s in sensors}]
         if unknown:
@@ -818,13 +1074,44 @@ def calibrate_mocap_fit(
                     f"{options.max_correspondence_iterations} iterations"
                 )
     assert sol is not None
-    holds = hold_labels(observations)
+    # the clock offset of every sensor whose target moved relative to the robot in its kept
+    # frames, jointly with its pose (Gauss-Newton on the offset, the poses solved again)
+    offsets: dict[str, float] = {}
+    if options.time_offset_sigma_s > 0:
+        offsets = {s.name: 0.0 for s in sensors
+                   if any(o.sensor == s.name and o.velocity is not None and np.any(o.velocity != 0)
+                          for o in observations)}
+    shifted = list(observations)
+    if offsets:
+        with single_threaded():
+            for _ in range(_OFFSET_ITERATIONS):
+                steps = _offset_steps(prob, sol, sensors, shifted, offsets, options)
+                for n, d in steps.items():
+                    offsets[n] += d
+                shifted = [shift_observation(o, offsets.get(o.sensor, 0.0)) for o in observations]
+                prob = _build(sensors, shifted, poses, surfaces, options, boards, block_poses, phase)
+                # the sensors (and estimated target poses) start where they were; held target
+                # poses are the shifted observations'
+                start = {k: v for k, v in sol.poses.items()
+                         if not k.startswith("target:") or options.target_pose_sigma is not None}
+                sol2 = solve(prob, loss=options.loss, loss_scale=options.loss_scale, start=start)
+                if not sol2.converged:
+                    raise ConvergenceError(f"mocap calibration did not converge: {sol2.status}")
+                sol = sol2
+                poses = {s.name: sol.poses[s.name] for s in sensors}
+                block_poses = {k: v for k, v in sol.poses.items() if k.startswith("target:")}
+                if max((abs(d) for d in steps.values()), default=0.0) < _OFFSET_SETTLED_S:
+                    break
     coupled = options.target_pose_sigma is not None or boards is not None
+    moving = {n: True for n in offsets}
+    # residuals of ``sol`` are whitened by the configured sigma times this (a reweighted solve
+    # whitens by the estimated noise): _matches judges against the configured sigma
+    whitened = {s.name: 1.0 for s in sensors}
     with single_threaded():
-        scale, infl, hsig, joint, determined = _fit_statistics(prob, sol, sensors, observations, holds, options)
-        if coupled or any(abs(np.log(v)) > np.log(4.0) for v in scale.values()):
+        stats, joint = _statistics(prob, sol, sensors, shifted, holds, options, moving)
+        if coupled or any(abs(np.log(st.s2)) > np.log(4.0) for st in stats.values()):
             # every sensor weighted by its own noise (and the robust loss's scale with it)
-            factor = {n: float(np.sqrt(v)) for n, v in scale.items()}
+            factor = {n: float(np.sqrt(st.s2)) for n, st in stats.items()}
             prob = prob.with_observations(tuple(
                 b.with_sigma(b.sigma * factor[b.sensor]) if b.label.startswith(ROBOT) else b
                 for b in prob.observations))
@@ -832,29 +1119,29 @@ def calibrate_mocap_fit(
             if sol2.converged:
                 sol = sol2
                 poses = {s.name: sol.poses[s.name] for s in sensors}
-            s2, infl, hsig, joint, determined = _fit_statistics(prob, sol, sensors, observations, holds, options)
-            scale = {n: scale[n] * s2[n] for n in scale}
+                whitened = factor
+            stats, joint = _statistics(prob, sol, sensors, shifted, holds, options, moving)
+            for n, st in stats.items():
+                st.s2 *= factor[n] ** 2
+                st.noise["view"] *= factor[n]
             prob = prob.with_observations(tuple(
                 b.with_sigma(b.sigma / factor[b.sensor]) if b.label.startswith(ROBOT) else b
                 for b in prob.observations))
     for s in sensors:
         if s.kind == SensorKind.CAMERA:
-            own = [o for o in observations if o.sensor == s.name]
+            own = [o for o in shifted if o.sensor == s.name]
             valid = _valid_fraction(s, own, poses[s.name])
             if valid < MIN_VALID_PROJECTION:
                 raise ConvergenceError(
                     f"camera '{s.name}': only {100 * valid:.0f} % of its target points project into "
                     f"the image under the estimate: its pose is not determined by its measurements",
                     sensor=s.name)
-    estimates, rmse, reproj, fits, noise = {}, {}, {}, {}, {}
-    errors: dict[str, list[np.ndarray]] = {s.name: [] for s in sensors}
-    for b, r in zip(prob.observations, sol.residuals):
-        if b.label.startswith(ROBOT):
-            errors[b.sensor].append(np.linalg.norm(r * b.sigma, axis=1))
-    matches = _matches(prob, sol, sensors, observations, scale)
+    estimates, rmse, reproj, fits = {}, {}, {}, {}
+    matches = _matches(prob, sol, sensors, shifted, whitened)
     for s in sensors:
+        st = stats[s.name]
         cov = joint([s.name])
-        if not determined[s.name] or not np.all(np.isfinite(cov)):
+        if not st.determined or not np.all(np.isfinite(cov)):
             raise ConvergenceError(
                 f"sensor '{s.name}': its measurements do not determine its pose (their information "
                 f"matrix is singular: too few measured points, or none that depend on the pose); "
@@ -863,22 +1150,38 @@ def calibrate_mocap_fit(
             name=s.name, kind=s.kind, frame_id=s.frame_id, T_reference_sensor=poses[s.name].copy(),
             covariance=cov, std=pose_std(poses[s.name], cov),
         )
-        e = np.concatenate(errors[s.name]) if errors[s.name] else np.full(1, np.nan)
-        value = float(np.sqrt(np.mean(e**2)))
+        own = [o for o in shifted if o.sensor == s.name]
+        e = np.concatenate([measured_residuals(o, s, poses[s.name], surfaces.get(o.target)) for o in own])
+        e = e[np.isfinite(e)]
+        value = float(np.sqrt(np.mean(e ** 2))) if e.size else float("nan")
         (reproj if s.kind == SensorKind.CAMERA else rmse)[f"{ROBOT}-{s.name}"] = value
-        sigma = float(s.sigma * np.sqrt(scale[s.name]))
-        if s.kind == SensorKind.LIDAR:
-            noise[s.name] = (sigma,)
+        sigma = float(s.sigma * np.sqrt(st.s2))
+        naive = st.naive
         fits[s.name] = MocapSensorFit(
             name=s.name, kind=s.kind, unit="px" if s.kind == SensorKind.CAMERA else "m",
-            sigma_nominal=float(s.sigma), noise_sigma=sigma, reduced_chi2=float(scale[s.name]),
-            hold_inflation=float(infl[s.name]), hold_sigma=hsig[s.name],
-            holds=len({h for h, o in zip(holds, observations) if o.sensor == s.name}),
-            observations=sum(1 for o in observations if o.sensor == s.name),
-            residuals=int(sum(len(x) for x in errors[s.name])),
-            matches=matches.get(s.name, {}), covariance_naive=sol.pose_covariance(s.name),
-            start=starts[s.name],
+            sigma_nominal=float(s.sigma), noise_sigma=sigma, reduced_chi2=float(st.s2),
+            hold_inflation=float(np.trace(cov) / np.trace(naive)) if np.trace(naive) > 0 else 1.0,
+            hold_sigma=st.hold_sigma,
+            holds=len({h for h, o in zip(holds, shifted) if o.sensor == s.name}),
+            observations=len(own), residuals=int(e.size),
+            matches=matches.get(s.name, {}), covariance_naive=naive, start=starts[s.name],
+            components=MappingProxyType({**{k: v for k, v in st.noise.items() if k != "view"},
+                                         f"view_{'px' if s.kind == SensorKind.CAMERA else 'm'}":
+                                             st.noise["view"] * float(s.sigma)}),
+            components_dof=MappingProxyType({k: float(v) for k, v in st.comp.dof.items()}),
+            time_offset_s=float(offsets[s.name]) if s.name in offsets else float("nan"),
+            time_offset_std_s=st.offset_std, time_offset_effect=st.offset_effect,
+            time_offset_status=_offset_status(s.name in offsets, st.offset_std, st.offset_effect, options),
+            views=distinct_holds(own, [h for h, o in zip(holds, shifted) if o.sensor == s.name]),
         )
+    noise_model = {}
+    for s in sensors:
+        f = fits[s.name]
+        comps = {("point_px" if f.unit == "px" else "point_m"): f.noise_sigma, **f.components}
+        if np.isfinite(f.time_offset_s):
+            comps["time_offset_s"] = f.time_offset_s
+            comps["time_offset_std_s"] = f.time_offset_std_s
+        noise_model[s.name] = {k: float(v) for k, v in comps.items()}
     result = CalibrationResult(
         mode="mocap",
         reference=ROBOT,
@@ -889,11 +1192,42 @@ def calibrate_mocap_fit(
         outliers={},
         iterations=sol.iterations,
         cost=sol.cost,
-        num_boards=len(observations),
-        noise_sigma_m=noise,
+        num_boards=0,
+        noise_model=noise_model,
         noise_iterations=it,
         solve_time_s=time.perf_counter() - t0,
         reprojection_px=reproj,
         relative=relative_estimates([s.name for s in sensors], poses, joint),
     )
-    return MocapFit(result=result, sensors=fits)
+    return MocapFit(result=result, sensors=fits, observations=tuple(shifted))
+
+
+def measured_residuals(obs: TargetObservation, sensor: MocapSensor, T_robot_sensor: np.ndarray,
+                       surface: TargetSurface | None = None) -> np.ndarray:
+    """The measured residual of every point of one observation under ``T_robot_sensor`` - the
+    one definition every mocap output uses (tables, ``calibration.yaml``, the report,
+    ``diagnostics.csv``): (n,) distances [m] between the measured lidar keypoints and the target
+    keypoints placed by the MCS, or reprojection errors [px] of a camera's keypoints; without
+    correspondences, a lidar point's distance to the target's surface and a pixel's distance to
+    the nearest projected template point (``surface`` needed then). NaN for a camera keypoint
+    that does not project."""
+    T_st = invert(np.asarray(T_robot_sensor, dtype=float)) @ obs.T_robot_target
+    if obs.keypoints_target is not None:
+        X = obs.keypoints_target @ T_st[:3, :3].T + T_st[:3, 3]
+        if sensor.kind == SensorKind.CAMERA:
+            uv, _ = sensor.camera.project(X)
+            return np.linalg.norm(obs.measured - uv, axis=1)
+        return np.linalg.norm(obs.measured - X, axis=1)
+    if surface is None:
+        raise InputError(f"observation of '{obs.target}' by '{sensor.name}': no keypoints and no "
+                         "target surface to measure its residual against")
+    if sensor.kind == SensorKind.CAMERA:
+        X = surface.template @ T_st[:3, :3].T + T_st[:3, 3]
+        uv, _ = sensor.camera.project(X)
+        ok = np.all(np.isfinite(uv), axis=1)
+        if not np.any(ok):
+            return np.full(len(obs.measured), np.nan)
+        d, _ = cKDTree(uv[ok]).query(obs.measured)
+        return d
+    T_ts = invert(T_st)
+    return surface.distance(obs.measured @ T_ts[:3, :3].T + T_ts[:3, 3])

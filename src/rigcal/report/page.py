@@ -190,8 +190,14 @@ def _context(data: Mapping[str, Any]) -> dict[str, Any]:
         errors.append({"pair": pair, "rmse": _fmt(None if v is None else v * 1000, ".2f"),
                        "cv": _fmt(None if cv.get(pair) is None else cv[pair] * 1000, ".2f"),
                        "worst": "-" if worst is None else f"#{worst[0]}: {worst[1] * 1000:.1f} mm"})
-    for pair, v in result.get("reprojection_px", {}).items():
-        errors.append({"pair": pair, "rmse": f"{_fmt(v, '.3f')} px (reprojection)", "cv": "-", "worst": "-"})
+    if data.get("kind") == "mocap":  # the measured residuals, with their units
+        for row in errors:
+            row["rmse"] = row["rmse"] + " mm"
+        for pair, v in result.get("reprojection_px", {}).items():
+            errors.append({"pair": pair, "rmse": f"{_fmt(v, '.4g')} px", "cv": "-", "worst": "-"})
+    else:
+        for pair, v in result.get("reprojection_px", {}).items():
+            errors.append({"pair": pair, "rmse": f"{_fmt(v, '.3f')} px (reprojection)", "cv": "-", "worst": "-"})
     outliers = "; ".join(f"{s}: boards {list(b)}" for s, b in result.get("outliers", {}).items() if b)
     coverage_rows = []
     for name, cov in data.get("coverage", {}).items():

@@ -57,7 +57,7 @@ import numpy as np
 
 from rigcal import interrupts
 from rigcal.errors import InputError
-from rigcal.geometry.se3 import as_rigid, from_rt, invert, transform_points
+from rigcal.geometry.se3 import as_rigid, from_rt, invert, se3_exp, transform_points
 from rigcal.geometry.so3 import matrix_from_rpy, so3_exp, so3_log
 from rigcal.sensors.camera.base import CameraModel
 from rigcal.sensors.camera.pinhole import PinholeCamera
@@ -168,11 +168,19 @@ class SceneSensor:
 class RobotPath:
     """The robot's motion in the MCS frame: at ``t_s`` seconds into the session it stands at
     ``start_xyz_m + velocity_mps * t_s`` with a constant heading ``yaw_deg`` (z up; the floor
-    is z = 0). Default: creeping at 1 cm/s along the map's x axis."""
+    is z = 0), turning at ``yaw_rate_dps``. Default: creeping at 1 cm/s along the map's x axis
+    with a constant heading."""
 
     start_xyz_m: tuple[float, float, float] = (0.5, -0.3, 0.0)
     velocity_mps: tuple[float, float, float] = (0.01, 0.0, 0.0)
     yaw_deg: float = 30.0
+    #: the robot turns at this rate [deg/s] (0: a constant heading)
+    yaw_rate_dps: float = 0.0
+    #: and sways about its heading by this much [deg], once every ``sway_period_s`` [s] (a
+    #: turn rate that changes: a constant twist makes a clock offset the same as a fixed
+    #: change of every sensor's pose, so only a changing one tells them apart)
+    sway_deg: float = 0.0
+    sway_period_s: float = 8.0
 
     def __post_init__(self) -> None:
         for key in ("start_xyz_m", "velocity_mps"):
@@ -181,12 +189,16 @@ class RobotPath:
                 raise InputError(f"RobotPath.{key}: expected three finite numbers, got {getattr(self, key)!r}")
             v.setflags(write=False)
             object.__setattr__(self, key, v)
-        if not math.isfinite(self.yaw_deg):
-            raise InputError(f"RobotPath.yaw_deg: expected a finite number, got {self.yaw_deg!r}")
+        for key in ("yaw_deg", "yaw_rate_dps", "sway_deg"):
+            if not math.isfinite(getattr(self, key)):
+                raise InputError(f"RobotPath.{key}: expected a finite number, got {getattr(self, key)!r}")
+        if not (math.isfinite(self.sway_period_s) and self.sway_period_s > 0):
+            raise InputError(f"RobotPath.sway_period_s: expected a duration > 0 [s], got {self.sway_period_s!r}")
 
     def at(self, t_s: float) -> np.ndarray:
         """``T_map_robot`` (4, 4) at ``t_s`` seconds into the session."""
-        R = matrix_from_rpy(np.radians([0.0, 0.0, self.yaw_deg]))
+        sway = self.sway_deg * math.sin(2 * math.pi * t_s / self.sway_period_s)
+        R = matrix_from_rpy(np.radians([0.0, 0.0, self.yaw_deg + self.yaw_rate_dps * t_s + sway]))
         return from_rt(R, self.start_xyz_m + self.velocity_mps * t_s)
 
 
@@ -271,6 +283,7 @@ class MocapScene:
     robot_frame: str = ROBOT_FRAME
     robot_topic: str = f"/vicon/{ROBOT_BODY}/{ROBOT_BODY}"
     target_topic: str = ""
+    robot_still_in_holds: bool = False
 
     def sensor(self, name: str) -> SceneSensor:
         for s in self.sensors:
@@ -279,8 +292,12 @@ class MocapScene:
         raise InputError(f"scene has no sensor '{name}' (sensors: {', '.join(s.name for s in self.sensors)})")
 
     def T_map_robot_at(self, t_ns: int) -> np.ndarray:
-        """The robot's true pose ``T_map_robot`` (4, 4) at ``t_ns``."""
-        return self.robot.at((t_ns - self.t0_ns) / NS)
+        """The robot's true pose ``T_map_robot`` (4, 4) at ``t_ns`` (its path's clock stopped
+        during the holds when ``robot_still_in_holds``)."""
+        still = 0
+        if self.robot_still_in_holds:
+            still = sum(min(max(t_ns - h.start_ns, 0), h.end_ns - h.start_ns) for h in self.holds)
+        return self.robot.at((t_ns - self.t0_ns - still) / NS)
 
     def holds_of(self, sensor: str) -> tuple[Hold, ...]:
         return tuple(h for h in self.holds if h.sensor == sensor)
@@ -295,28 +312,38 @@ def _pose(rpy_deg: Sequence[float], xyz_m: Sequence[float], optical: bool) -> np
     return from_rt(R @ R_BODY_OPTICAL if optical else R, xyz_m)
 
 
-def two_sensor_rig() -> tuple[SceneSensor, SceneSensor]:
+#: a VLP-16's range noise (std) [m]: what the simulated lidar's ranges err by
+VLP16_RANGE_SIGMA_M = 0.015
+
+
+def two_sensor_rig(lidar_range_sigma_m: float = VLP16_RANGE_SIGMA_M) -> tuple[SceneSensor, SceneSensor]:
     """The lidar and camera of :func:`rigcal.sim.mocap.paper_rig` (no shared view of their
-    own, but the VLP-16 sees all around): ``lidar1`` (a noise-free VLP-16 on
-    ``/velodyne_points``, frame ``velodyne_link``) and ``camera1`` (a 1024 x 768 pinhole
-    camera looking left on ``/F1/image_raw``, frame ``camera_link``)."""
+    own, but the VLP-16 sees all around): ``lidar1`` (a VLP-16 with ``lidar_range_sigma_m`` of
+    range noise, 15 mm by default, told the same ``sigma_m``; on ``/velodyne_points``, frame
+    ``velodyne_link``) and ``camera1`` (a 1024 x 768 pinhole camera looking left on
+    ``/F1/image_raw``, frame ``camera_link``)."""
     base = paper_rig()
+    sigma = float(lidar_range_sigma_m)
+    if not (math.isfinite(sigma) and sigma >= 0):
+        raise InputError(f"two_sensor_rig: lidar_range_sigma_m must be >= 0, got {lidar_range_sigma_m!r}")
     return (
-        SceneSensor("lidar1", LIDAR, base.T_robot_lidar, vlp16(range_sigma_m=0.0), "/velodyne_points", "velodyne_link"),
+        SceneSensor("lidar1", LIDAR, base.T_robot_lidar, vlp16(range_sigma_m=sigma), "/velodyne_points",
+                    "velodyne_link", sigma=max(sigma, 0.001)),
         SceneSensor("camera1", CAMERA, base.T_robot_camera,
                     PinholeCamera.from_intrinsics(1024, 768, 1176.0, 1176.0, 511.5, 383.5),
                     "/F1/image_raw", "camera_link"),
     )
 
 
-def default_rig() -> tuple[SceneSensor, SceneSensor, SceneSensor]:
-    """Three sensors looking three ways with no shared view: ``lidar1``, a noise-free VLP-16
-    0.65 m up looking forward with its returns limited to +-50 deg of azimuth; ``camera1``, a
-    1024 x 768 pinhole camera 0.55 m up looking left; ``camera2``, a 1280 x 960 radtan camera
-    (k1 = -0.2: visible barrel distortion) 0.60 m up looking right."""
-    lidar, left = two_sensor_rig()
+def default_rig(lidar_range_sigma_m: float = VLP16_RANGE_SIGMA_M) -> tuple[SceneSensor, SceneSensor, SceneSensor]:
+    """Three sensors looking three ways with no shared view: ``lidar1``, a VLP-16 (range noise
+    ``lidar_range_sigma_m``, 15 mm by default) 0.65 m up looking forward with its returns
+    limited to +-50 deg of azimuth; ``camera1``, a 1024 x 768 pinhole camera 0.55 m up looking
+    left; ``camera2``, a 1280 x 960 radtan camera (k1 = -0.2: visible barrel distortion) 0.60 m
+    up looking right."""
+    lidar, left = two_sensor_rig(lidar_range_sigma_m)
     lidar = SceneSensor(lidar.name, LIDAR, lidar.T_robot_sensor, lidar.model, lidar.topic, lidar.frame_id,
-                        azimuth_fov_deg=(-50.0, 50.0))
+                        azimuth_fov_deg=(-50.0, 50.0), sigma=lidar.sigma)
     right = SceneSensor(
         "camera2", CAMERA, _pose([0.6, -1.8, -92.0], [0.02, -0.24, 0.60], optical=True),
         RadtanCamera.from_intrinsics(1280, 960, 1050.0, 1050.0, 641.0, 478.5, -0.2, 0.06, 0.0005, -0.0003),
@@ -386,7 +413,7 @@ def _transform_msg(store: Any, t_ns: int, parent: str, child: str, T: np.ndarray
     from rigcal.io.recordings.pointcloud2 import make_header
     from rigcal.mocap.streams import matrix_to_quat_xyzw
 
-    q = matrix_to_quat_xyzw(T[:3, :3])
+    q = matrix_to_quat_xyzw(T[:3, :3]) if np.all(np.isfinite(T)) else np.full(4, np.nan)  # a dropout
     V = store.types["geometry_msgs/msg/Vector3"]
     Q = store.types["geometry_msgs/msg/Quaternion"]
     tr = store.types["geometry_msgs/msg/Transform"](
@@ -479,6 +506,13 @@ def write_mocap_scene(
     perturbation: tuple[float, float] = (0.03, 5.0),
     initial_sigma: tuple[float, float] = (0.02, 3.0),
     progress: Progress | None = None,
+    mcs_noise: tuple[float, float] = (0.0, 0.0),
+    hold_bias: tuple[float, float] = (0.0, 0.0),
+    stamp_delay_s: Mapping[str, float] | None = None,
+    stamp_jitter_s: float = 0.0,
+    dropout_fraction: tuple[float, float] = (0.0, 0.0),
+    glitch_s: float = 0.0,
+    robot_still_in_holds: bool = True,
 ) -> MocapScene:
     """Simulate a calibration session of ``sensors`` (default :func:`default_rig`) and write
     it to ``folder`` (see the module docstring); returns what was written and the truth.
@@ -494,7 +528,23 @@ def write_mocap_scene(
     ``mocap.yaml`` (it sizes the extractors' search regions). ``progress(done, total)`` is
     called after every simulated sensor frame. Files are written atomically; existing ones are
     replaced. Raises InputError for bad arguments, GeometryError when no target pose fits a
-    sensor's view."""
+    sensor's view.
+
+    Errors of a real session, drawn from a second generator (``[seed, 1]``: the defaults
+    write the same files as before they existed): ``mcs_noise`` (translation [m], rotation
+    [rad]) - every MCS sample of the robot and the target perturbed on the right, independently
+    (a Vicon: about 0.15 mm / 0.3 mrad); ``hold_bias`` (translation [m], rotation [rad]) - one
+    error of the target's MCS pose per hold, from the middle of the move before it to the
+    middle of the move after it; ``stamp_delay_s`` (sensor name -> seconds) - each sensor's
+    frames stamped that much after their capture (a clock offset between the MCS and the
+    sensor); ``stamp_jitter_s`` - every frame's stamp off its capture by a normal error of that
+    std; ``dropout_fraction`` (robot, target) - that fraction of each body's MCS samples
+    published as dropouts (NaN values, what a bridge sends for a lost body); ``glitch_s`` -
+    in every hold, the target's samples over that long a stretch are dropouts too.
+
+    ``robot_still_in_holds`` (default): the robot follows ``robot`` only between the holds and
+    stands while the target is held (a clock offset between the MCS and a sensor then has
+    nothing to act on); False: it moves all the time."""
     from rosbags.typesys import Stores, get_typestore
 
     from rigcal.io.atomic import atomic_write_text
@@ -508,6 +558,8 @@ def write_mocap_scene(
         raise InputError(f"write_mocap_scene: seed must be an integer >= 0, got {seed!r}")
     rig = _check_sensors(default_rig() if sensors is None else sensors)
     counts = _counts(holds, rig)
+    if not isinstance(robot_still_in_holds, bool):
+        raise InputError(f"write_mocap_scene: robot_still_in_holds must be true or false, got {robot_still_in_holds!r}")
     if not isinstance(exclusive, bool):
         raise InputError(f"write_mocap_scene: exclusive must be true or false, got {exclusive!r}")
     if target is None:
@@ -527,6 +579,23 @@ def write_mocap_scene(
             raise InputError(f"write_mocap_scene: {what} must be (metres, degrees), got {pair!r}") from None
         if not (math.isfinite(a) and math.isfinite(b) and a >= 0 and b >= 0) or (what == "initial_sigma" and not (a > 0 and b > 0)):
             raise InputError(f"write_mocap_scene: {what} must be two finite numbers >= 0 (> 0 for initial_sigma), got {pair!r}")
+    for what, pair in (("mcs_noise", mcs_noise), ("hold_bias", hold_bias), ("dropout_fraction", dropout_fraction)):
+        try:
+            a, b = (float(v) for v in pair)
+        except (TypeError, ValueError):
+            raise InputError(f"write_mocap_scene: {what} must be two numbers, got {pair!r}") from None
+        if not (math.isfinite(a) and math.isfinite(b) and a >= 0 and b >= 0) or (what == "dropout_fraction" and max(a, b) >= 1):
+            raise InputError(f"write_mocap_scene: {what} must be two numbers >= 0 (fractions < 1), got {pair!r}")
+    for what, v in (("stamp_jitter_s", stamp_jitter_s), ("glitch_s", glitch_s)):
+        if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+            raise InputError(f"write_mocap_scene: {what} must be a number >= 0 [s], got {v!r}")
+    delays = {s.name: 0.0 for s in rig}
+    for name, v in dict(stamp_delay_s or {}).items():
+        if name not in delays:
+            raise InputError(f"write_mocap_scene: stamp_delay_s: no sensor '{name}' (sensors: {', '.join(delays)})")
+        if not (isinstance(v, (int, float)) and math.isfinite(v) and abs(v) < 1.0):
+            raise InputError(f"write_mocap_scene: stamp_delay_s['{name}'] must be a number of seconds below 1 in size, got {v!r}")
+        delays[name] = float(v)
     n_holds = sum(counts)
     if timing.gap_hold is not None and timing.gap_hold >= n_holds:
         raise InputError(f"write_mocap_scene: timing.gap_hold {timing.gap_hold} but the session has only {n_holds} holds")
@@ -540,22 +609,29 @@ def write_mocap_scene(
     rng = np.random.default_rng(int(seed))
     T0 = T0_NS
 
-    def robot_at(t_ns: int) -> np.ndarray:
-        return robot.at((t_ns - T0) / NS)
-
-    # the holds: sensor after sensor, each pose in its sensor's view (and no other's)
+    # the holds' times: sensor after sensor
     aims = [s for s, n in zip(rig, counts) for _ in range(n)]
+    hold_ns, move_ns = int(timing.hold_s * NS), int(timing.move_s * NS)
+    spans = [T0 + int(timing.lead_s * NS) + k * (hold_ns + move_ns) for k in range(len(aims))]
+    spans = [(a, a + hold_ns) for a in spans]
+
+    def robot_at(t_ns: int) -> np.ndarray:
+        if not robot_still_in_holds:
+            return robot.at((t_ns - T0) / NS)
+        # the robot moves only between the holds: its path's clock stops while one lasts
+        still = sum(min(max(t_ns - a, 0), b - a) for a, b in spans)
+        return robot.at((t_ns - T0 - still) / NS)
+
+    # the holds: each pose in its sensor's view (and no other's)
     holds: list[tuple[int, int, SceneSensor]] = []
     moves: list[tuple[int, int]] = []
     poses: list[np.ndarray] = []
-    hold_ns, move_ns = int(timing.hold_s * NS), int(timing.move_s * NS)
     t = T0 + int(timing.lead_s * NS)
     for k, aim in enumerate(aims):
         if k:
             moves.append((t, t + move_ns))
             t += move_ns
-        mid_s = (t - T0) / NS + timing.hold_s / 2
-        T_mr = robot.at(mid_s)
+        T_mr = robot_at(t + hold_ns // 2)
         others = [s.view(T_mr) for s in rig if s is not aim] if exclusive else []
         poses.append(sample_pose_in_view(aim.view(T_mr), target, rng, placement, avoid=others))
         holds.append((t, t + hold_ns, aim))
@@ -580,12 +656,44 @@ def write_mocap_scene(
     robot_topic = f"/vicon/{ROBOT_BODY}/{ROBOT_BODY}"
     target_topic = f"/vicon/{target.name}/{target.name}"
     msgs: list[tuple[int, str, str, Any]] = []
+    # the session's errors from their own generator: the defaults leave the files unchanged
+    err = np.random.default_rng([int(seed), 1])
+    biases = [se3_exp(np.concatenate([err.normal(0, hold_bias[1], 3), err.normal(0, hold_bias[0], 3)]))
+              for _ in holds] if max(hold_bias) > 0 else None
+    edges = [T0] + [(a + b) // 2 for a, b in moves] + [end + 1]
+    glitches = []
+    if glitch_s > 0:
+        for a, b, _ in holds:
+            g0 = a + int(err.uniform(0.1, 0.9) * (b - a - glitch_s * NS))
+            glitches.append((g0, g0 + int(glitch_s * NS)))
+
+    def noisy(T: np.ndarray) -> np.ndarray:
+        if max(mcs_noise) <= 0:
+            return T
+        return T @ se3_exp(np.concatenate([err.normal(0, mcs_noise[1], 3), err.normal(0, mcs_noise[0], 3)]))
+
+    nan_pose = np.full((4, 4), np.nan)
     for t_ns in range(T0, end + 1, NS // timing.mcs_hz):
         if gap is None or not gap[0] <= t_ns <= gap[1]:
+            T = noisy(robot_at(t_ns))
+            if dropout_fraction[0] > 0 and err.uniform() < dropout_fraction[0]:
+                T = nan_pose
             msgs.append((t_ns, robot_topic, "geometry_msgs/msg/TransformStamped",
-                         _transform_msg(store, t_ns, MOCAP_FRAME, f"vicon/{ROBOT_BODY}/{ROBOT_BODY}", robot_at(t_ns))))
+                         _transform_msg(store, t_ns, MOCAP_FRAME, f"vicon/{ROBOT_BODY}/{ROBOT_BODY}", T)))
+        T = target_at(t_ns)
+        if biases is not None:
+            T = T @ biases[int(np.searchsorted(edges, t_ns, side="right")) - 1]
+        T = noisy(T)
+        if (dropout_fraction[1] > 0 and err.uniform() < dropout_fraction[1]) or any(a <= t_ns < b for a, b in glitches):
+            T = nan_pose
         msgs.append((t_ns, target_topic, "geometry_msgs/msg/TransformStamped",
-                     _transform_msg(store, t_ns, MOCAP_FRAME, f"vicon/{target.name}/{target.name}", target_at(t_ns))))
+                     _transform_msg(store, t_ns, MOCAP_FRAME, f"vicon/{target.name}/{target.name}", T)))
+
+    def stamp(name: str, t_ns: int) -> int:
+        """The header stamp of a frame captured at ``t_ns``: late by the sensor's delay, off by
+        the jitter."""
+        jitter = err.normal(0, stamp_jitter_s) if stamp_jitter_s > 0 else 0.0
+        return int(t_ns + round((delays[name] + jitter) * NS))
 
     # sensor frames: the lidar, then every camera half a period later (each a little after the
     # one before)
@@ -609,10 +717,11 @@ def write_mocap_scene(
         cloud = cast_lidar(lidar.model, T_ml, target, target_at(int(t_ns)), (), rng, t_ns=int(t_ns),
                            sensor=lidar.name, azimuth_fov_deg=lidar.azimuth_fov_deg)
         hits[i] = bool(np.any(cloud.fields["surface"] == 0))
-        cloud = PointCloudFrame(lidar.name, int(t_ns), cloud.points_xyz,
+        st = stamp(lidar.name, int(t_ns))
+        cloud = PointCloudFrame(lidar.name, st, cloud.points_xyz,
                                 {"intensity": cloud.fields["intensity"], "ring": cloud.fields["ring"]},
                                 frame_id=lidar.frame_id)
-        msgs.append((int(t_ns), lidar.topic, "sensor_msgs/msg/PointCloud2", encode_pointcloud2(cloud, store)))
+        msgs.append((st, lidar.topic, "sensor_msgs/msg/PointCloud2", encode_pointcloud2(cloud, store)))
         done += 1
         if progress is not None:
             progress(done, total)
@@ -633,7 +742,8 @@ def write_mocap_scene(
             else:  # part of the target behind the camera: it is not in the image
                 img = np.clip(background + rng.normal(0, pixel_noise_sigma, (model.height, model.width)),
                               0, 255).astype(np.uint8)
-            msgs.append((int(t_ns), cam.topic, "sensor_msgs/msg/Image", _image_msg(store, int(t_ns), img, cam.frame_id)))
+            st = stamp(cam.name, int(t_ns))
+            msgs.append((st, cam.topic, "sensor_msgs/msg/Image", _image_msg(store, st, img, cam.frame_id)))
             done += 1
             if progress is not None:
                 progress(done, total)
@@ -690,4 +800,5 @@ def write_mocap_scene(
         seed=int(seed),
         robot_topic=robot_topic,
         target_topic=target_topic,
+        robot_still_in_holds=robot_still_in_holds,
     )

@@ -1,0 +1,425 @@
+"""What one sensor's motion-capture residuals are made of, estimated from the residuals.
+
+At the solution of a motion-capture calibration (:mod:`rigcal.problem.mocap`) a sensor's
+residuals ``r`` (n,), whitened by its configured sigma, are modelled as
+
+    r = X b + e_point + sum_f U_f a_f + sum_f u_f j_f + sum_g U_g c_g
+
+* ``X`` (n, p): the fixed effects - the sensor's pose (6 columns) and, when the robot or
+  the target moved, the clock offset between the MCS and the sensor (one column);
+* ``e_point ~ N(0, s2 I)``: every measured point or pixel on its own (the sensor's noise);
+* ``a_f ~ N(0, capture I6)`` per **capture** (sensor frame) f, through ``U_f = Jd_f L_f``: the
+  MCS's pose error of the robot and the target at that frame (``L_f L_f'`` its shape: the
+  scatter the MCS streams themselves show, or a default shape);
+* ``j_f ~ N(0, jitter)`` per capture, through ``u_f = Jd_f xi_f``: a timing error of the
+  frame's stamp [s] times the target's velocity relative to the robot ``xi_f``;
+* ``c_g ~ N(0, hold I6)`` per **hold** g (the target held still), through ``U_g = Jd_g L_g``,
+  shared by every frame of the hold: the MCS's error of the still target and what the
+  extractor makes of one view.
+
+``Jd_f`` maps a right perturbation of the frame's ``T_robot_target`` to the residuals. The
+variance components ``(s2, capture, jitter, hold)`` are estimated by restricted maximum
+likelihood (REML: the likelihood of the residuals with the fixed effects projected out), in
+the low-dimensional space the random effects span (Woodbury), so it costs little even for
+thousands of lidar points. A component estimated from few groups (four holds) is uncertain:
+its degrees of freedom come from the REML curvature, and :func:`sandwich` widens its part of
+the covariance so that a 6-DOF region holds the truth as often as it says.
+
+The estimate itself is the least-squares one the solver returns; its covariance is the
+sandwich ``A^-1 (X' V X / s2 + P) A^-1`` with ``A = X' X / s2 + P``, where ``P`` is the prior
+of the clock offset (a pseudo-observation ``offset / sigma``) - so an offset the data cannot
+tell from the pose widens the pose's covariance instead of hiding in it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Mapping
+
+import numpy as np
+from scipy.linalg import cho_factor, cho_solve
+from scipy.optimize import minimize, minimize_scalar
+from scipy.stats import chi2, f as f_dist
+
+__all__ = ["COMPONENTS", "Components", "effective_dof", "fit_components", "sandwich", "widening"]
+
+#: the random effects besides the per-point noise, in the order of the parameters
+COMPONENTS = ("capture", "jitter", "hold_rot", "hold")
+#: the grouped component (a random offset per keypoint coordinate and hold), after COMPONENTS
+VIEW = "view"
+#: the loading of the view component's part in the pose directions (taken out of it)
+VIEW_POSE = "view_pose"
+#: a variance component is kept when dropping it raises -2 log REML by more than this (a test
+#: of a variance on the boundary at about the 5 % level)
+LIKELIHOOD_RATIO = 2.71
+#: components estimated from many groups (one per keypoint coordinate and hold) whose zero
+#: estimate is replaced by the largest value
+#: the data do not exclude: -2 log L within UPPER_DEVIANCE of the optimum (a one-sided 84 %
+#: bound)
+UPPER_COMPONENTS = ("view",)
+UPPER_DEVIANCE = 1.0
+_SWEEPS = 4
+
+
+@dataclass(frozen=True)
+class Components:
+    """Estimated variance components of one sensor (whitened units: ``s2`` multiplies the
+    configured sigma squared; the others are the variances of their random effects, in the
+    units their loadings were built in). ``dof[c]``: the degrees of freedom of component
+    ``c``'s estimate (from the REML curvature; ``inf`` when it is known far better than it
+    matters, 0 when it was not estimated); ``floored[c]``: its estimate was below its floor."""
+
+    s2: float
+    values: Mapping[str, float]
+    dof: Mapping[str, float]
+    floored: Mapping[str, bool]
+    #: covariance of the logs of the estimated variances (``"point"`` and every component kept
+    #: and not floored), from the REML curvature: how uncertain the noise model is
+    log_cov: Mapping[tuple[str, str], float] = None  # type: ignore[assignment]
+
+    def get(self, name: str) -> float:
+        return float(self.values.get(name, 0.0))
+
+
+def _basis(X: np.ndarray) -> np.ndarray:
+    """An orthonormal basis (n, k) of the column space of ``X`` (numerically independent
+    columns only)."""
+    if X.shape[1] == 0:
+        return X
+    U, s, _ = np.linalg.svd(X, full_matrices=False)
+    keep = s > 1e-9 * max(float(s.max()), 1e-300)
+    return U[:, keep]
+
+
+class _Reml:
+    """-2 log REML likelihood of ``r`` under ``V = B + sum_c theta_c U_c U_c'`` with
+    ``B = s2 I + view Z Z'`` (``Z``: the indicator of each row's group, block diagonal, inverted
+    in closed form) and the column space of ``X`` projected out; the low-rank ``U`` part by
+    Woodbury, so every evaluation costs O(K^3) for K random effects, whatever the rows."""
+
+    def __init__(self, r: np.ndarray, X: np.ndarray, loadings: Mapping[str, np.ndarray],
+                 groups: np.ndarray | None = None):
+        self.n = len(r)
+        Q = _basis(X)
+        self.p = Q.shape[1]
+        self.names = [c for c in COMPONENTS if c in loadings and loadings[c].shape[1] > 0]
+        Us = [loadings[c] for c in self.names]
+        self.sizes = [u.shape[1] for u in Us]
+        # the view component's part in the pose directions, taken out: loaded with the view's
+        # variance and the opposite sign
+        vp = loadings.get(VIEW_POSE)
+        self.vp = 0 if vp is None or groups is None or not np.any(np.asarray(groups) >= 0) else vp.shape[1]
+        if self.vp:
+            Us = Us + [vp]
+        U = np.hstack(Us) if Us else np.zeros((self.n, 0))
+        self.K = U.shape[1]
+        # every inner product needed: of Y = [U Q r], and of its sums over each group
+        Y = np.column_stack([U, Q, r])
+        self.YY = Y.T @ Y
+        self.units = [max(float(np.sum(u * u)) / self.n, 1e-300) for u in Us[:len(self.sizes)]]
+        self.by_size: dict[int, np.ndarray] = {}
+        self.n_grouped = 0
+        if groups is not None and np.any(groups >= 0):
+            g = np.asarray(groups)
+            ids, inverse, counts = np.unique(g[g >= 0], return_inverse=True, return_counts=True)
+            S = np.zeros((len(ids), Y.shape[1]))
+            np.add.at(S, inverse, Y[g >= 0])
+            for size in np.unique(counts):
+                Ss = S[counts == size]
+                self.by_size[int(size)] = Ss.T @ Ss
+            self.group_counts = counts
+            self.n_grouped = int(np.sum(counts))
+            self.names.append("view")
+            self.units.append(float(np.sum(counts * counts)) / self.n)
+        self.unit = np.array(self.units)
+
+    def theta(self, phi: np.ndarray) -> tuple[float, np.ndarray]:
+        return float(np.exp(phi[0])), np.exp(phi[1:]) / self.unit
+
+    def __call__(self, phi: np.ndarray) -> float:
+        s2, th = self.theta(phi)
+        K, p = self.K, self.p
+        view = th[-1] if self.by_size else 0.0
+        th = th[: len(self.sizes)]
+        sign = np.ones(K)
+        if self.vp:
+            th = np.r_[th, view]
+            sign[K - self.vp:] = -1.0
+            sizes = self.sizes + [self.vp]
+        else:
+            sizes = self.sizes
+        # Y' B^-1 Y, and log |B|
+        YBY = self.YY.copy()
+        logdetB = (self.n - self.n_grouped) * np.log(s2)
+        for size, W in self.by_size.items():
+            YBY -= view / (s2 + size * view) * W
+        if self.by_size:
+            c = self.group_counts
+            logdetB += float(np.sum((c - 1) * np.log(s2) + np.log(s2 + c * view)))
+        YBY /= s2
+        G, UQ, Ur = YBY[:K, :K], YBY[:K, K:K + p], YBY[:K, -1]
+        QQ, Qr, rr = YBY[K:K + p, K:K + p], YBY[K:K + p, -1], float(YBY[-1, -1])
+        g = np.sqrt(np.repeat(th, sizes)) if K else np.zeros(0)
+        # V = B + W E W' (W = U g, E the signs): V^-1 = B^-1 - B^-1 W N^-1 W' B^-1 with
+        # N = E + W' B^-1 W, and log |V| = log |B| + log |det N|
+        N = np.diag(sign) + g[:, None] * G * g[None, :]
+        gUQ = g[:, None] * UQ
+        gUr = g * Ur
+        if K:
+            if self.vp:
+                sgn, logdetM = np.linalg.slogdet(N)
+                if sgn == 0 or not np.isfinite(logdetM):
+                    return 1e300
+                sol = np.linalg.solve(N, np.column_stack([gUQ, gUr]))
+                MiQ, Mir = sol[:, :-1], sol[:, -1]
+            else:
+                try:
+                    cf = cho_factor(N, lower=True, check_finite=False)
+                except np.linalg.LinAlgError:
+                    return 1e300
+                logdetM = 2.0 * float(np.sum(np.log(np.diag(cf[0]))))
+                MiQ = cho_solve(cf, gUQ, check_finite=False)
+                Mir = cho_solve(cf, gUr, check_finite=False)
+        else:
+            logdetM, MiQ, Mir = 0.0, gUQ, gUr
+        QVQ = QQ - gUQ.T @ MiQ
+        QVr = Qr - gUQ.T @ Mir
+        rVr = rr - float(gUr @ Mir)
+        logdetV = logdetB + logdetM
+        if not p:
+            return float(logdetV + rVr)
+        try:
+            cq = cho_factor(QVQ, lower=True, check_finite=False)
+        except np.linalg.LinAlgError:
+            return 1e300
+        logdetQ = 2.0 * float(np.sum(np.log(np.diag(cq[0]))))
+        rPr = rVr - float(QVr @ cho_solve(cq, QVr, check_finite=False))
+        return float(logdetV + logdetQ + rPr)
+
+
+def fit_components(r: np.ndarray, X: np.ndarray, loadings: Mapping[str, np.ndarray],
+                   floors: Mapping[str, float] | None = None, groups: np.ndarray | None = None
+                   ) -> Components:
+    """REML estimates of the variance components of one sensor's whitened residuals ``r``
+    (n,) with fixed effects ``X`` (n, p) and random-effect loadings ``loadings[c]`` (n, k_c)
+    for ``c`` in :data:`COMPONENTS` (missing or empty: not in the model), and ``groups`` (n,):
+    each row's group for the ``"view"`` component (a random offset per group shared by its
+    rows: one keypoint coordinate in every frame of one hold; -1: none). ``floors[c]``: the
+    least value a component may take (a known lower bound: the MCS's own scatter); the
+    estimate is raised to it and its dof set to ``inf`` (a floor is not an estimate)."""
+    r = np.asarray(r, dtype=float)
+    n = len(r)
+    floors = dict(floors or {})
+    f = _Reml(r, X, loadings, groups)
+    dof_resid = max(n - f.p, 1)
+    v0 = max(float(f.YY[-1, -1]) / dof_resid, 1e-300)
+    m = len(f.names)
+    if groups is None:
+        groups = np.full(n, -1)
+    lo = np.log(v0) + np.r_[-30.0, np.full(m, -30.0)]
+    hi = np.log(v0) + np.r_[5.0, np.full(m, 12.0)]
+
+    def fit(off: frozenset[int], starts):
+        """The REML optimum with the components ``off`` held at zero (their lower bound): from
+        each start, sweeps of one-dimensional searches over every parameter in turn (robust on
+        this surface, whose valleys run along the bounds), then a quasi-Newton polish."""
+        b_hi = hi.copy()
+        for i in off:
+            b_hi[i] = lo[i]
+        best_x, best_f = None, np.inf
+        for x0 in starts:
+            x = np.clip(np.asarray(x0, dtype=float), lo, b_hi)
+            fx = f(x)
+            for _ in range(_SWEEPS):
+                before = fx
+                for i in range(len(x)):
+                    if b_hi[i] <= lo[i]:
+                        continue
+
+                    def along(v, i=i):
+                        y = x.copy()
+                        y[i] = v
+                        return f(y)
+
+                    r = minimize_scalar(along, bounds=(lo[i], b_hi[i]), method="bounded",
+                                        options={"xatol": 1e-3})
+                    if r.fun < fx:
+                        x[i], fx = r.x, float(r.fun)
+                if before - fx < 1e-6:
+                    break
+            res = minimize(f, x, method="L-BFGS-B", bounds=list(zip(lo, b_hi)))
+            if res.fun < fx:
+                x, fx = res.x, float(res.fun)
+            if fx < best_f:
+                best_x, best_f = x, fx
+        return best_x, float(best_f)
+
+    # a component stays only when the residuals need it: dropping it must cost more than
+    # LIKELIHOOD_RATIO in -2 log L (backward elimination); a spurious small one would
+    # otherwise be estimated from almost nothing (its few degrees of freedom then widen the
+    # covariance for nothing)
+    off: frozenset[int] = frozenset()
+    phi, dev = fit(off, [np.log(v0) + np.r_[0.0, np.full(m, start)] for start in (0.5, -3.0)])
+    while True:
+        live = [i for i in range(1, m + 1) if i not in off and phi[i] > np.log(v0) - 12.0]
+        trials = [(fit(off | {i}, [phi]), i) for i in live]
+        if not trials:
+            break
+        (phi_d, dev_d), i = min(trials, key=lambda t: t[0][1])
+        if dev_d - dev > LIKELIHOOD_RATIO:
+            break
+        off = off | {i}
+        phi, dev = phi_d, dev_d
+    s2, th = f.theta(phi)
+    # a component at (next to) its lower bound is zero: it explains nothing
+    values = {c: (0.0 if i + 1 in off or phi[i + 1] <= np.log(v0) - 12.0 else float(v))
+              for i, (c, v) in enumerate(zip(f.names, th))}
+    # ... but zero is only what the data cannot tell from zero: a component estimated from many
+    # groups (every keypoint of every hold, every capture) takes the largest value the data
+    # do not exclude (-2 log L within UPPER_DEVIANCE of its optimum), a bound it knows tightly
+    bounded = [i for i, c in enumerate(f.names) if c in UPPER_COMPONENTS and values[c] == 0.0]
+    # degrees of freedom from the curvature of -2 log L in the log parameters:
+    # var(log theta_c) = 2 [H^-1]_cc, dof = 2 / var. A component estimated at (next to) zero
+    # contributes nothing: its dof do not matter (inf)
+    dof = {c: float("inf") for c in f.names}
+    live = [i for i in range(1, m + 1) if i not in off and phi[i] > np.log(v0) - 12.0]
+    idx = [0] + live
+    H = _hessian(f, phi, idx)
+    try:
+        Hi = np.linalg.inv(H)
+        if not np.all(np.isfinite(Hi)) or np.any(np.diag(Hi) <= 0):
+            raise np.linalg.LinAlgError
+    except np.linalg.LinAlgError:
+        Hi = np.diag(1.0 / np.maximum(np.diag(H), 1e-12))
+    labels = ["point"] + [f.names[i - 1] for i in live]
+    log_cov = {(a, b): float(2.0 * Hi[ia, ib]) for ia, a in enumerate(labels) for ib, b in enumerate(labels)}
+    for k, i in enumerate(idx[1:], start=1):
+        var = 2.0 * Hi[k, k]
+        dof[f.names[i - 1]] = float(2.0 / var) if var > 0 else 1.0
+    dof["point"] = float(2.0 / (2.0 * Hi[0, 0])) if Hi[0, 0] > 0 else float(dof_resid)
+    for i in bounded:
+        values[f.names[i]] = _upper(f, phi, i + 1, dev, np.log(v0))
+        dof[f.names[i]] = float("inf")  # a bound, not an estimate
+    floored = {}
+    for c in (*COMPONENTS, VIEW):
+        low = float(floors.get(c, 0.0))
+        floored[c] = c in values and values[c] < low
+        if floored[c]:
+            values[c] = low
+            dof[c] = float("inf")
+            log_cov = {k: v for k, v in log_cov.items() if c not in k}
+        elif c not in values and low > 0:
+            values[c] = low
+    return Components(s2=s2, values=values, dof=dof, floored=floored, log_cov=log_cov)
+
+
+def _upper(f: _Reml, phi: np.ndarray, i: int, dev: float, log_v0: float) -> float:
+    """The largest value of parameter ``i`` (the others held at ``phi``) whose -2 log REML stays
+    within UPPER_DEVIANCE of ``dev``: bisection in the log parameter."""
+    lo, hi = log_v0 - 12.0, log_v0 + 12.0
+    x = phi.copy()
+
+    def excess(v: float) -> float:
+        x[i] = v
+        return f(x) - dev - UPPER_DEVIANCE
+
+    if excess(lo) > 0:
+        return 0.0
+    if excess(hi) < 0:
+        x[i] = hi
+        return float(f.theta(x)[1][i - 1])
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        if excess(mid) > 0:
+            hi = mid
+        else:
+            lo = mid
+    x[i] = lo
+    return float(f.theta(x)[1][i - 1])
+
+
+def _hessian(f, phi: np.ndarray, idx: list[int], h: float = 1e-2) -> np.ndarray:
+    k = len(idx)
+    H = np.zeros((k, k))
+    f0 = f(phi)
+    for a in range(k):
+        for b in range(a, k):
+            ea = np.zeros_like(phi)
+            eb = np.zeros_like(phi)
+            ea[idx[a]] = h
+            eb[idx[b]] = h
+            if a == b:
+                H[a, a] = (f(phi + ea) - 2 * f0 + f(phi - ea)) / h**2
+            else:
+                H[a, b] = H[b, a] = (f(phi + ea + eb) - f(phi + ea - eb) - f(phi - ea + eb)
+                                     + f(phi - ea - eb)) / (4 * h**2)
+    return H
+
+
+def widening(dof: float, dim: int = 6) -> float:
+    """How much wider the part of a covariance estimated with ``dof`` degrees of freedom must be
+    for a ``dim``-DOF 95 % region to hold the truth 95 % of the time: ``dim F_0.95(dim, dof) /
+    chi2_0.95(dim)`` (1 for ``dof`` large or unknown)."""
+    if not np.isfinite(dof) or dof <= 0 or dof > 1e6:
+        return 1.0
+    dof = max(dof, 1.0)
+    return float(dim * f_dist.ppf(0.95, dim, dof) / chi2.ppf(0.95, dim))
+
+
+def sandwich(X: np.ndarray, loadings: Mapping[str, np.ndarray], comp: Components,
+             prior: np.ndarray | None = None, groups: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """The (p, p) covariance of the least-squares estimate of the fixed effects ``X`` (n, p)
+    when the residuals have the covariance of ``comp``, by source: ``"point"``, each random
+    component of ``loadings``, and ``"prior"``; their sum is the covariance. ``prior`` (p,):
+    per fixed effect the inverse std of a zero-mean prior (0: none) - a pseudo-observation the
+    estimate also fits (the truth drawn from it)."""
+    s2 = comp.s2
+    p = X.shape[1]
+    P = np.diag(np.square(prior)) if prior is not None else np.zeros((p, p))
+    XX = X.T @ X
+    A = XX / s2 + P
+    Ai = np.linalg.pinv(A, rcond=1e-13)
+    parts = {"point": Ai @ (XX / s2) @ Ai}
+    for c, U in loadings.items():
+        if c == VIEW_POSE:
+            continue
+        v = comp.get(c)
+        if U.shape[1] == 0 or v <= 0:
+            continue
+        UX = U.T @ X
+        parts[c] = Ai @ ((v / s2 ** 2) * (UX.T @ UX)) @ Ai
+    v = comp.get("view")
+    if groups is not None and v > 0 and np.any(groups >= 0):
+        g = np.asarray(groups)
+        ids, inverse = np.unique(g[g >= 0], return_inverse=True)
+        S = np.zeros((len(ids), p))
+        np.add.at(S, inverse, X[g >= 0])
+        meat = S.T @ S
+        vp = loadings.get(VIEW_POSE)
+        if vp is not None and vp.shape[1]:
+            VX = vp.T @ X
+            meat = meat - VX.T @ VX
+        parts["view"] = Ai @ ((v / s2 ** 2) * meat) @ Ai
+    if prior is not None:
+        parts["prior"] = Ai @ P @ Ai
+    return {k: 0.5 * (v + v.T) for k, v in parts.items()}
+
+
+def effective_dof(parts: Mapping[str, np.ndarray], comp: Components, dim: int | None = None) -> float:
+    """Satterthwaite's degrees of freedom of a covariance made of ``parts`` (by source,
+    :func:`sandwich`), each estimated with ``comp.dof[name]`` degrees of freedom (the point
+    noise with ``comp.dof["point"]``; missing or floored: known): ``(sum w)^2 / sum(w^2 /
+    dof)`` with ``w`` each part's share ``trace(C^-1 C_part)`` over the first ``dim``
+    parameters. The components' correlations are left out: two that trade for each other
+    count as uncertain as each is alone (conservative)."""
+    total = sum(parts.values())
+    k = dim or total.shape[0]
+    Ci = np.linalg.pinv(total[:k, :k], rcond=1e-12)
+    num, den = 0.0, 0.0
+    for name, Cp in parts.items():
+        w = float(np.trace(Ci @ Cp[:k, :k]))
+        num += w
+        d = comp.dof.get(name, float("inf")) if not comp.floored.get(name) else float("inf")
+        if np.isfinite(d):
+            den += w * w / max(d, 1e-9)
+    return float(num * num / den) if den > 0 else float("inf")

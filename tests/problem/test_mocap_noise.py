@@ -1,0 +1,100 @@
+"""The variance components of motion-capture residuals (REML), on residuals drawn from known ones."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rigcal.problem.mocap_noise import Components, effective_dof, fit_components, sandwich, widening
+
+
+def _design(rng, holds=8, frames=6, points=40):
+    """Rows of ``holds`` x ``frames`` frames of ``points`` 2-D points each: fixed effects X
+    (n, 6), per-frame loadings (6 each), per-hold loadings (3 each) and view groups (one per
+    point coordinate and hold)."""
+    n_f = holds * frames
+    n = n_f * points * 2
+    X = rng.normal(size=(n, 6))
+    frame = np.repeat(np.arange(n_f), points * 2)
+    hold = frame // frames
+    cap = np.zeros((n, 6 * n_f))
+    hld = np.zeros((n, 3 * holds))
+    base = rng.normal(size=(holds, points * 2, 3))
+    for f in range(n_f):
+        rows = frame == f
+        cap[rows, 6 * f: 6 * f + 6] = rng.normal(size=(rows.sum(), 6)) * 0.3
+        g = f // frames
+        hld[rows, 3 * g: 3 * g + 3] = base[g]
+    groups = hold * points * 2 + np.tile(np.arange(points * 2), n_f)
+    return X, {"capture": cap, "hold": hld}, groups
+
+
+def _draw(rng, X, loads, groups, s2, cap, hold, view):
+    n = X.shape[0]
+    r = X @ rng.normal(size=6) + rng.normal(0, np.sqrt(s2), n)
+    r += loads["capture"] @ rng.normal(0, np.sqrt(cap), loads["capture"].shape[1])
+    r += loads["hold"] @ rng.normal(0, np.sqrt(hold), loads["hold"].shape[1])
+    r += rng.normal(0, np.sqrt(view), groups.max() + 1)[groups]
+    return r
+
+
+def test_components_are_recovered_from_residuals_that_have_them():
+    rng = np.random.default_rng(0)
+    X, loads, groups = _design(rng)
+    r = _draw(rng, X, loads, groups, s2=1.0, cap=4.0, hold=9.0, view=0.5)
+    c = fit_components(r, X, loads, groups=groups)
+    assert c.s2 == pytest.approx(1.0, rel=0.1)
+    assert c.get("capture") == pytest.approx(4.0, rel=0.35)
+    assert c.get("hold") == pytest.approx(9.0, rel=0.8)  # 8 holds: few groups
+    assert c.get("view") == pytest.approx(0.5, rel=0.3)
+    assert 2 < c.dof["hold"] < 60 and c.dof["capture"] > c.dof["hold"]
+
+
+def test_components_the_residuals_do_not_need_are_dropped():
+    # point noise alone: no spurious hold error (it would widen the covariance for nothing)
+    rng = np.random.default_rng(1)
+    X, loads, groups = _design(rng, holds=4)
+    r = _draw(rng, X, loads, groups, s2=2.0, cap=0.0, hold=0.0, view=0.0)
+    c = fit_components(r, X, loads, groups=groups)
+    assert c.s2 == pytest.approx(2.0, rel=0.1)
+    assert c.get("hold") == 0.0  # few groups: dropped
+    # many groups: zero is replaced by the largest value the data do not exclude, a tight bound
+    assert 0 < c.get("view") < 0.05 * c.s2 and c.dof["view"] == np.inf
+    assert c.get("capture") == 0.0
+
+
+def test_a_floor_is_a_known_least_value_not_an_estimate():
+    rng = np.random.default_rng(2)
+    X, loads, groups = _design(rng, holds=4)
+    r = _draw(rng, X, loads, groups, s2=1.0, cap=0.0, hold=0.0, view=0.0)
+    c = fit_components(r, X, loads, floors={"capture": 3.0})
+    assert c.get("capture") == 3.0 and c.floored["capture"] and c.dof["capture"] == np.inf
+
+
+def test_sandwich_parts_add_up_and_the_prior_bounds_an_undetermined_effect():
+    rng = np.random.default_rng(3)
+    X, loads, groups = _design(rng, holds=4, frames=2, points=10)
+    comp = Components(s2=1.0, values={"capture": 0.5, "hold": 2.0}, dof={"hold": 5.0}, floored={})
+    parts = sandwich(X, loads, comp)
+    assert set(parts) == {"point", "capture", "hold"}
+    for p in parts.values():
+        assert np.all(np.linalg.eigvalsh(p) > -1e-12)
+    # a seventh fixed effect equal to the first: only its prior tells them apart, and the
+    # covariance of the first grows by what the prior allows
+    X7 = np.column_stack([X, X[:, 0]])
+    cov7 = sum(sandwich(X7, loads, comp, prior=np.r_[np.zeros(6), 1.0 / 0.1]).values())
+    cov6 = sum(parts.values())
+    assert cov7[6, 6] == pytest.approx(0.01, rel=0.05)
+    assert cov7[0, 0] == pytest.approx(cov6[0, 0] + 0.01, rel=0.05)
+
+
+def test_widening_and_effective_degrees_of_freedom():
+    assert widening(np.inf) == 1.0 and widening(0.0) == 1.0
+    assert widening(3.0) > widening(10.0) > widening(100.0) > 1.0
+    assert widening(1e5) == pytest.approx(1.0, abs=0.01)
+    C = np.eye(6)
+    comp = Components(s2=1.0, values={}, dof={"point": 1000.0, "hold": 4.0}, floored={})
+    # the hold part dominates: its few degrees of freedom are the covariance's
+    assert effective_dof({"point": 0.01 * C, "hold": C}, comp) == pytest.approx(4.0, rel=0.05)
+    # a negligible uncertain part does not matter
+    assert effective_dof({"point": C, "hold": 1e-6 * C}, comp) > 500

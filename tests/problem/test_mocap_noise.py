@@ -98,3 +98,46 @@ def test_widening_and_effective_degrees_of_freedom():
     assert effective_dof({"point": 0.01 * C, "hold": C}, comp) == pytest.approx(4.0, rel=0.05)
     # a negligible uncertain part does not matter
     assert effective_dof({"point": C, "hold": 1e-6 * C}, comp) > 500
+
+
+def _dense_reml(r, X, V):
+    """-2 log REML written out densely: log|V| + log|X' V^-1 X| + r' P r."""
+    Vi = np.linalg.inv(V)
+    Q = np.linalg.svd(X, full_matrices=False)[0]
+    A = Q.T @ Vi @ Q
+    P = Vi - Vi @ Q @ np.linalg.solve(A, Q.T @ Vi)
+    return np.linalg.slogdet(V)[1] + np.linalg.slogdet(A)[1] + float(r @ P @ r)
+
+
+def test_reml_is_the_dense_likelihood_where_v_is_a_covariance_and_refused_elsewhere():
+    """The view component's pose part enters with a negative sign, so V = s2 I + view (Z Z' -
+    W W') + ... is a covariance only for some parameters. Where it is not, the Woodbury form
+    gave finite, hugely negative values (-3e11 on a camera of the mocap demo) that the search
+    took: a point noise of 1e-11 and a 2.5 m std. It must refuse exactly there."""
+    from rigcal.problem.mocap_noise import _Reml
+
+    rng = np.random.default_rng(5)
+    n = 24
+    groups = np.repeat(np.arange(12), 2)
+    X = rng.normal(size=(n, 2))
+    hold = rng.normal(size=(n, 3))
+    W = np.zeros((n, 1))
+    W[:2, 0] = 1.5  # more than the group's own loading: V indefinite for a large view
+    r = rng.normal(size=n)
+    f = _Reml(r, X, {"hold": hold, "view_pose": W}, groups)
+    Z = np.zeros((n, 12))
+    Z[np.arange(n), groups] = 1.0
+    refused = accepted = 0
+    for log_s2 in (-6.0, -2.0, 0.0):
+        for log_hold in (-4.0, 0.0):
+            for log_view in (-6.0, -1.0, 0.0, 2.0):
+                phi = np.array([log_s2, log_hold, log_view])
+                s2, th = f.theta(phi)
+                V = s2 * np.eye(n) + th[0] * hold @ hold.T + th[1] * (Z @ Z.T - W @ W.T)
+                if np.linalg.eigvalsh(V).min() > 0:
+                    accepted += 1
+                    assert f(phi) == pytest.approx(_dense_reml(r, X, V), rel=1e-8, abs=1e-6)
+                else:
+                    refused += 1
+                    assert f(phi) == 1e300
+    assert refused and accepted  # both sides were tried

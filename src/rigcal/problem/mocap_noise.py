@@ -167,10 +167,18 @@ class _Reml:
         gUr = g * Ur
         if K:
             if self.vp:
-                sgn, logdetM = np.linalg.slogdet(N)
-                if sgn == 0 or not np.isfinite(logdetM):
+                # the view's pose part enters with a negative sign: V is a covariance only
+                # where it stays positive definite, i.e. (Haynsworth's inertia) where N has
+                # exactly as many negative eigenvalues as the signs. Elsewhere log |V| and
+                # r' V^-1 r are numbers of no likelihood (seen: -2 log L = -3e11 at a point
+                # noise of 1e-11, which the search then took)
+                w, E = np.linalg.eigh(0.5 * (N + N.T))
+                scale = max(float(np.abs(w).max()), 1e-300)
+                if (np.sum(w < 0) != self.vp or np.any(np.abs(w) < 1e-12 * scale)
+                        or not np.all(np.isfinite(w))):
                     return 1e300
-                sol = np.linalg.solve(N, np.column_stack([gUQ, gUr]))
+                logdetM = float(np.sum(np.log(np.abs(w))))
+                sol = E @ ((E.T @ np.column_stack([gUQ, gUr])) / w[:, None])
                 MiQ, Mir = sol[:, :-1], sol[:, -1]
             else:
                 try:
@@ -194,6 +202,8 @@ class _Reml:
             return 1e300
         logdetQ = 2.0 * float(np.sum(np.log(np.diag(cq[0]))))
         rPr = rVr - float(QVr @ cho_solve(cq, QVr, check_finite=False))
+        if not rPr >= 0.0:  # a quadratic form of a covariance: negative only by cancellation
+            return 1e300
         return float(logdetV + logdetQ + rPr)
 
 

@@ -172,7 +172,12 @@ class _Reml:
                 # exactly as many negative eigenvalues as the signs. Elsewhere log |V| and
                 # r' V^-1 r are numbers of no likelihood (seen: -2 log L = -3e11 at a point
                 # noise of 1e-11, which the search then took)
-                w, E = np.linalg.eigh(0.5 * (N + N.T))
+                if not np.all(np.isfinite(N)):
+                    return 1e300
+                try:
+                    w, E = np.linalg.eigh(0.5 * (N + N.T))
+                except np.linalg.LinAlgError:
+                    return 1e300
                 scale = max(float(np.abs(w).max()), 1e-300)
                 if (np.sum(w < 0) != self.vp or np.any(np.abs(w) < 1e-12 * scale)
                         or not np.all(np.isfinite(w))):

@@ -337,6 +337,7 @@ def mocap_demo(
     seed: int = 7,
     holds: int = 4,
     progress: Callable[[str, int, int], None] | None = None,
+    shown_as: str | os.PathLike[str] | None = None,
 ) -> MocapDemoReport:
     """Write a simulated motion-capture session of :func:`rigcal.sim.mocap_scene.default_rig`
     (a forward lidar, a left pinhole camera and a right radtan camera, no shared view; the
@@ -344,7 +345,10 @@ def mocap_demo(
     ``rigcal mocap`` path (:func:`~rigcal.mocap.config.load_mocap_config` ->
     :func:`~rigcal.mocap.pipeline.run_mocap` -> :func:`~rigcal.mocap.pipeline.write_mocap_outputs`
     into ``out_dir/results``) and compare every sensor's initial and final calibration with
-    the truth. ``progress(stage, done, total)`` reports the simulation and the extraction."""
+    the truth. ``progress(stage, done, total)`` reports the simulation and the extraction.
+    ``shown_as``: the folder ``out_dir`` will be published as (the CLI stages the demo in a
+    hidden folder and renames it): the outputs name the scene's files where the user finds
+    them, not in the staging folder."""
     from rigcal.mocap.config import load_mocap_config
     from rigcal.mocap.pipeline import KEPT, run_mocap, write_mocap_outputs
     from rigcal.problem.compare import pose_error
@@ -369,6 +373,16 @@ def mocap_demo(
     if run.not_calibrated:  # the simulated session shows every sensor: a partial run is a failure
         raise ConvergenceError("mocap demo: " + "; ".join(
             f"sensor '{n}' not calibrated: {why}" for n, why in run.not_calibrated.items()))
+    if shown_as is not None:  # a rejection's detail names the bag it read
+        there = str(Path(shown_as).absolute())
+
+        def shown(text: str) -> str:
+            for here in {str(out.resolve()), str(out.absolute())}:
+                text = text.replace(here, there)
+            return text
+
+        run = dataclasses.replace(run, diagnostics=tuple(
+            dataclasses.replace(d, detail=shown(d.detail)) for d in run.diagnostics))
     written = write_mocap_outputs(run, out / "results")
     counts = run.counts
     outcomes = []

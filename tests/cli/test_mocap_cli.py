@@ -104,6 +104,10 @@ def test_demo_mocap_calibrates_three_sensors_with_no_shared_view(tmp_path, capsy
               "results/calibration.yaml", "results/extrinsics.json", "results/diagnostics.csv"):
         assert (out / f).is_file(), f
     assert f"rigcal mocap {out / 'scene' / 'mocap.yaml'} --out {out / 'results'}" in text  # one line
+    # the demo was staged in a hidden folder and renamed: its diagnostics name the bag where it
+    # is now (a rejection for a frame before the MCS stream started names it)
+    diagnostics = (out / "results" / "diagnostics.csv").read_text()
+    assert ".partial" not in diagnostics and f"({out / 'scene' / 'run.bag'})" in diagnostics
     # stdout is not a terminal: progress as plain lines, each stage ending at 100 %
     for stage, unit in (("simulating the session", ""), ("extracting targets", " frames")):
         assert re.search(rf"^{stage}: (\d+)/\1{unit} \(100%\), [0-9.]+ s$", text, re.M), stage

@@ -205,7 +205,7 @@ def run(args, console) -> int:
         elif args.mocap:
             with progress_bar(console) as bar:
                 report = mocap_demo(stage, seed=args.seed, holds=4 if args.holds is None else args.holds,
-                                    progress=stage_progress(bar, units))
+                                    progress=stage_progress(bar, units), shown_as=out.absolute())
         elif args.detections_only:
             report = detections_demo(stage, seed=args.seed, boards=29 if args.boards is None else args.boards)
         else:

@@ -253,7 +253,7 @@ def test_a_radar_scale_is_judged_under_the_noise_with_the_scale_free():
     _, res = _residuals(fault.dataset)
     col = scale_columns(res)["radar2"]
     g = res.units.groups.index(("radar2", "range"))
-    alt = under_alternative(res, col, np.ones(res.r.size, dtype=bool))
+    alt = under_alternative(res, col, np.ones(res.r.size, dtype=bool), "radar2")
     assert np.sqrt(res.theta[g]) > 0.015 and np.sqrt(alt.theta[g]) < 0.008
     check = scale_check(res)
     assert check.status == FAIL and check.detail.startswith("radar2")

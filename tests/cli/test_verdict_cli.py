@@ -104,8 +104,13 @@ def test_a_wrong_hole_spacing_is_named_with_the_estimate(tmp_path, rig, capsys):
     path = write_dataset(replace(sim.dataset, board=BoardGeometry(spacing_m=0.24)), tmp_path / "d")
     code, text = _calibrate(capsys, path, tmp_path / "out")
     assert code == EXIT_FLAGGED, text
-    found = re.search(r"configured hole spacing is 0.2400 m - set board.spacing_m: (0\.\d+) in rig.yaml", text)
-    assert found and float(found.group(1)) == pytest.approx(0.25, abs=0.002)
+    found = re.search(r"circle centres are (0\.\d+) \+- (0\.\d+) m apart, the configured hole spacing is "
+                      r"0.2400 m - set board.spacing_m: (0\.\d+) in rig.yaml", text)
+    assert found, text
+    estimate, sd = float(found.group(1)), float(found.group(2))
+    # the true 0.25 within 4 of the reported std, and that std small enough to tell 0.24 from it
+    assert abs(estimate - 0.25) <= 4.0 * sd and sd < 0.002
+    assert float(found.group(3)) == pytest.approx(estimate, abs=0.0005)
 
     _set_manifest(path, lambda data: data["board"].update(spacing_m=0.25))
     assert _calibrate(capsys, path, tmp_path / "out")[0] == 0

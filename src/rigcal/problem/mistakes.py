@@ -50,7 +50,7 @@ ALPHA = 1e-3
 #: not known much better; and with noisy cameras and noisy radars together the estimate
 #: itself is biased: -25 +- 5 mm on the coverage benchmark's rig 46 - 20 mm camera noise, 30 mm
 #: radar range noise - and unbiased when either is precise; its cause is not found), the hole
-#: spacing [m] (noisy centres lengthen the sides a little)
+#: spacing [m] (a detector's circle centres need not sit exactly on the holes' centres)
 TOLERANCE = {"scale": 0.003, "offset": 0.06, "spacing": 0.003}
 
 #: the documented hole order and its names
@@ -348,6 +348,120 @@ def fit_alternatives(res: PairResiduals, columns: np.ndarray, rows: np.ndarray |
     return beta, var, var_up
 
 
+def _row_pairs(res: PairResiduals) -> list[tuple[str, str, np.ndarray]]:
+    """(frame sensor, observer sensor, row indices) of every pair block of ``res``."""
+    out, row0 = [], 0
+    for b in res.problem.observations:
+        n = b.size * b.dim
+        out.append((b.frame[0], b.observer[0], np.arange(row0, row0 + n)))
+        row0 += n
+    return out
+
+
+def star_rows(res: PairResiduals, rows: np.ndarray) -> np.ndarray:
+    """(rows,) bool: of the ``rows`` a non-redundant set - per board, the pairs of one hub
+    sensor (the first lidar or camera that saw it, else the first sensor) with each other
+    sensor that saw it. Every pair of the board is a difference of two of these (to first
+    order): they carry the same information, with a residual covariance of full rank."""
+    order = {n: i for i, n in enumerate(res.dataset.names)}
+    point = {s.name for s in res.dataset.sensors if s.kind.is_point_cloud}
+    pairs = [(a, b, idx[rows[idx]]) for a, b, idx in _row_pairs(res)]
+    hubs: dict[int, str] = {}
+    for a, b, idx in pairs:
+        for k in np.unique(res.row_board[idx]):
+            for n in (a, b):
+                h = hubs.get(int(k))
+                if h is None or (n in point, -order[n]) > (h in point, -order[h]):
+                    hubs[int(k)] = n
+    keep = np.zeros(res.r.size, dtype=bool)
+    for a, b, idx in pairs:
+        hub = np.array([hubs[int(k)] for k in res.row_board[idx]])
+        keep[idx[(hub == a) | (hub == b)]] = True
+    return keep
+
+
+def fit_efficient(res: PairResiduals, columns: np.ndarray, rows: np.ndarray | None = None,
+                  unit_variances: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """As :func:`fit_alternatives`, but weighted with the residuals' full covariance (pairs that
+    share a sensor's detections are correlated): generalised least squares on
+    :func:`star_rows`, whose covariance is block diagonal by board - the best linear unbiased
+    estimate of the linearised pair model, its variance the Cramer-Rao bound of that model.
+    ``unit_variances`` (units,): every noise unit's variance (default: the noise model's; the
+    truth in a simulation, for the bound). Returns (beta, var, var_upper) as
+    :func:`fit_alternatives` does (var_upper: at the largest noise the data support; with
+    ``unit_variances``, var again)."""
+    cols = np.asarray(columns, dtype=float).reshape(res.r.size, -1)
+    idx = np.flatnonzero(star_rows(res, np.ones(res.r.size, dtype=bool) if rows is None else rows))
+    D = res.D[idx]
+    D = D.toarray() if hasattr(D, "toarray") else np.asarray(D)
+    units = res.units
+    var_u = (np.maximum(res.theta[units.group], 1e-12) * units.scale**2 if unit_variances is None
+             else np.asarray(unit_variances, dtype=float))
+    n, q = res.J.shape[1], cols.shape[1]
+    X = np.column_stack([res.J[idx], cols[idx]])
+    boards = res.row_board[idx]
+    blocks = []  # (rows of the board, L^-1 with L L' its residual covariance)
+    WX, Wr = np.zeros_like(X), np.zeros(idx.size)
+    for k in np.unique(boards):
+        sel = np.flatnonzero(boards == k)
+        S = (D[sel] * var_u) @ D[sel].T
+        Li = np.linalg.inv(np.linalg.cholesky(S + 1e-12 * np.trace(S) / sel.size * np.eye(sel.size)))
+        blocks.append((sel, Li))
+        WX[sel], Wr[sel] = Li @ X[sel], Li @ res.r[idx[sel]]
+    beta, var, var_up = np.zeros(q), np.full(q, np.inf), np.full(q, np.inf)
+    for j in range(q):
+        x = WX[:, n + j]
+        perp = x - WX[:, :n] @ np.linalg.lstsq(WX[:, :n], x, rcond=1e-12)[0] if n else x
+        den = float(perp @ perp)
+        if den <= 1e-9 * float(x @ x):
+            continue  # a column the poses explain (almost) entirely
+        beta[j] = -float(perp @ Wr) / den
+        a = np.zeros(idx.size)  # the estimator as weights on the (unwhitened) rows
+        for sel, Li in blocks:
+            a[sel] = Li.T @ perp[sel] / den
+        Da = D.T @ a
+        if unit_variances is not None:
+            var[j] = var_up[j] = float(np.sum(Da**2 * var_u))
+            continue
+        c = np.bincount(units.group, weights=Da**2 * units.scale**2, minlength=len(units.groups))
+        var[j] = float(c @ res.theta)
+        var_up[j] = res.region.upper(c)
+    return beta, var, var_up
+
+
+def under_alternative(res: PairResiduals, column: np.ndarray, rows: np.ndarray, sensor: str,
+                      rounds: int = 2) -> PairResiduals:
+    """``res`` with the noise model estimated as if the extra parameter of ``column`` (d residuals
+    / d beta) - a mistake of ``sensor`` - were free: the residuals with beta and the poses fitted
+    (weighted least squares, repeated ``rounds`` times with the noise they give). The residuals
+    and poses stay those of ``res``; only ``theta`` and ``region`` change. A mistake left in the
+    residuals inflates the noise estimate of the sensor it concerns - a radar's 1 % range scale
+    read as 22 mm range noise where the truth is 3 mm - and a test judged with that noise hides
+    it (the noise a likelihood-ratio test compares against is that of the better of the two
+    models). Only ``sensor``'s noise may come out lower than in ``res``: the other sensors keep
+    the larger of the two estimates (a split of a pair's noise the data hardly tell may wander
+    under the alternative - on the real Prius data a camera's lateral noise went to the floor)."""
+    from rigcal.problem.noise import estimate_theta_best, noise_region
+
+    X = np.column_stack([res.J, np.asarray(column, dtype=float)])
+    m, n = X.shape
+    own = np.array([g[0] == sensor for g in res.units.groups])
+    out = res
+    for _ in range(rounds):
+        w = np.where(rows, 1.0 / np.maximum(out.M @ out.theta, 1e-8), 0.0)
+        step = np.linalg.lstsq(X.T @ (X * w[:, None]), -(X.T @ (w * res.r)), rcond=1e-12)[0]
+        r = res.r + X @ step
+        theta = estimate_theta_best(r[rows], res.M[rows], m / max(m - n, 1), batches=res.batches[rows])
+        theta = np.where(own, theta, np.maximum(theta, res.theta))
+        out = replace(res, theta=theta, region=noise_region(res.M[rows], theta))
+    return out
+
+
+#: a sensor whose scale is this many std off under the noise estimated without it is judged
+#: again with the noise estimated with its scale free (:func:`under_alternative`)
+SCALE_SCREEN_Z = 2.0
+
+
 def scale_check(res: PairResiduals, skip: Sequence[str] = ()) -> Check | None:
     """``scale``: a sensor whose detections are too large or too small relative to the others'
     (wrong units in part, a stereo baseline or focal length off, a lidar's range scale).
@@ -357,12 +471,19 @@ def scale_check(res: PairResiduals, skip: Sequence[str] = ()) -> Check | None:
     if len(cols) < 2:
         return None
     names = list(cols)
-    beta, _, var_up = fit_alternatives(res, np.column_stack([cols[n] for n in names]), rows)
+    X = np.column_stack([cols[n] for n in names])
+    beta, _, var_up = fit_alternatives(res, X, rows)
+    limit = z_critical(ALPHA, len(names))
+    # the (at most two) sensors that look off, but not beyond the limit, are judged again
+    # under the noise estimated with their scale free
+    z0 = np.abs(beta) / np.sqrt(var_up)
+    for j in [int(i) for i in np.argsort(-z0)[:2] if SCALE_SCREEN_Z < z0[i] <= limit]:
+        b, _, v = fit_alternatives(under_alternative(res, X[:, j], rows, names[j]), X, rows)
+        beta[j], var_up[j] = b[j], v[j]
     # beta: the correction (the detections times 1 + beta fit); how far off they are: 1 / (1 + beta)
     beta = 1.0 / (1.0 + beta) - 1.0
     sd = np.sqrt(var_up)
     z = beta / sd
-    limit = z_critical(ALPHA, len(names))
     evidence = tuple(Evidence(f"{n} scale - 1", float(b), float(limit * s), "estimate (threshold: "
                               f"{limit:.1f} std)") for n, b, s in zip(names, beta, sd))
     order = np.argsort(-np.abs(z))
@@ -552,53 +673,54 @@ def _point_covariances(res: PairResiduals, s: SensorDetections, pts: np.ndarray,
     return np.einsum("nc,nci,ncj->nij", var, dirs, dirs)
 
 
-#: the six distances between a board's four holes (file order TL, TR, BL, BR) and their length
-#: in units of the spacing: four sides, two diagonals
-_HOLE_PAIRS = ((0, 1, 1.0), (2, 3, 1.0), (0, 2, 1.0), (1, 3, 1.0), (0, 3, math.sqrt(2.0)), (1, 2, math.sqrt(2.0)))
+#: a board's two pairs of parallel sides (file order TL, TR, BL, BR): top TR - TL and bottom
+#: BR - BL, left BL - TL and right BR - TR. The two sides of a pair share no hole, so their
+#: noises are independent and the dot product of the two measured sides is an unbiased
+#: estimate of the squared spacing, whatever the noise (a squared length is not: noise
+#: lengthens every distance by an amount only a noise model could say)
+_PARALLEL_SIDES = (((1, 0), (3, 2)), ((2, 0), (3, 1)))
 
 
-#: a hole distance whose noise (tr of its covariance) is above this share of its squared
-#: length is not used: its correction for the length noise adds would depend on the noise
-#: model more than the spacing on the data (far boards of a stereo camera)
-MAX_DISTANCE_NOISE = 0.01
-
-
-#: the spacing estimate's std is widened by this (see :func:`spacing_check`)
-SPACING_SD_FACTOR = 1.3
-
-
-def _squared_spacings(C: np.ndarray, cov: np.ndarray, cov_up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per board (k, 4, 3 centres; (k, 4, 3, 3) covariances at the estimated noise and at the
-    largest noise the data support): the squared spacing the six hole distances show, each
-    corrected for the length noise adds to it (``E|d + e|^2 = |d|^2 + tr Cov(e)``: noisy
-    centres lengthen every distance), averaged with weights from their variance; and the
-    variance of that average (inf: no distance of the board is precise enough even at the
-    largest noise, :data:`MAX_DISTANCE_NOISE`)."""
-    q, w = [], []
-    for i, j, length in _HOLE_PAIRS:
-        d = C[:, i] - C[:, j]
-        Cd = cov[:, i] + cov[:, j]
-        q.append((np.sum(d * d, axis=1) - np.trace(Cd, axis1=1, axis2=2)) / length**2)
-        # Var |d + e|^2 ~ 4 d'Cd d + 2 tr(Cd^2) at the largest supported noise (a weak split
-        # may put a sensor's axis at the floor), plus (1 mm)^2 per coordinate: no distance is
-        # known better than that
-        Cf = cov_up[:, i] + cov_up[:, j] + 1e-6 * np.eye(3)
-        var = 4.0 * np.einsum("ki,kij,kj->k", d, Cf, d) + 2.0 * np.einsum("kij,kji->k", Cf, Cf)
-        usable = np.trace(Cf, axis1=1, axis2=2) <= MAX_DISTANCE_NOISE * np.sum(d * d, axis=1)
-        w.append(np.where(usable, length**4 / np.maximum(var, 1e-16), 0.0))
-    q, w = np.array(q), np.array(w)  # (6, k); the six share noise: the average's variance is
-    total = np.sum(w, axis=0)  # taken as that of its best distance
-    mean = np.sum(w * q, axis=0) / np.where(total > 0, total, 1.0)
-    best = np.max(w, axis=0)
-    return mean, np.where(best > 0, 1.0 / np.where(best > 0, best, 1.0), np.inf)
+def _board_spacings(C: np.ndarray, cov: np.ndarray, spacing_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per board (``C`` (k, 4, 3) centres, ``cov`` (k, 4, 3, 3) their covariances): the squared
+    spacing the board shows - the mean of its two parallel-side dot products (unbiased, no noise
+    model in it) - and that mean's variance under ``cov``. The variance is evaluated at sides of
+    the configured length ``spacing_m`` along the measured directions, not at the measured
+    lengths: a weight that grows as a board's sides come out short would bias the weighted mean
+    (the measured length and its error go together)."""
+    lin, quad = [], 0.0
+    for (a, b), (c, d) in _PARALLEL_SIDES:
+        d1, d2 = C[:, a] - C[:, b], C[:, c] - C[:, d]
+        u = d1 + d2
+        u = spacing_m * u / np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-12)
+        # first order: u . (e_a - e_b + e_c - e_d); second order: (e_a - e_b) . (e_c - e_d)
+        lin.append((u, (a, b, c, d)))
+        C1, C2 = cov[:, a] + cov[:, b], cov[:, c] + cov[:, d]
+        quad = quad + np.einsum("kij,kji->k", C1, C2)
+    q = 0.5 * sum(np.sum((C[:, a] - C[:, b]) * (C[:, c] - C[:, d]), axis=1) for (a, b), (c, d) in _PARALLEL_SIDES)
+    # the linear parts of the two products as loadings on each hole's error: (k, 4, 3)
+    load = np.zeros(C.shape)
+    for u, (a, b, c, d) in lin:
+        load[:, a] += 0.5 * u
+        load[:, b] -= 0.5 * u
+        load[:, c] += 0.5 * u
+        load[:, d] -= 0.5 * u
+    var = np.einsum("khi,khij,khj->k", load, cov, load) + 0.25 * quad
+    return q, var
 
 
 def spacing_check(res: PairResiduals) -> Check | None:
     """``spacing``: the hole spacing the lidars' and cameras' centres show against
-    ``board.spacing_m`` - from each board's hole distances alone, corrected for the length the
-    noise adds (no pose or other sensor enters). Boards are weighted by the noise model; the
-    variance is the larger of the noise model's and the boards' own scatter (robust to a noise
-    model that does not fit)."""
+    ``board.spacing_m`` - from each board's shape alone (no pose or other sensor enters): the
+    dot products of its parallel sides (:func:`_board_spacings`), unbiased whatever the noise.
+    Boards are weighted by the noise model; the variance is the larger of the noise model's and
+    the boards' own scatter (robust to a noise model that does not fit).
+
+    Measured on 300 clean rigs of the verdict population (FCPE poses, seed 0): (estimate -
+    truth) / std has mean -0.07 and std 0.90. The squared hole distances corrected by the noise
+    model that this replaced kept only the distances whose noise was below 1 % of their squared
+    length *as measured*: with 10-15 mm lidar noise only the diagonals that came out long
+    passed, and two clean rigs read 0.253 and 0.258 m for 0.24."""
     board = res.dataset.board
     s0 = board.spacing_m
     per, all_q, all_v = {}, [], []
@@ -613,24 +735,19 @@ def spacing_check(res: PairResiduals) -> Check | None:
         if not s.kind.is_point_cloud or np.sum(s.valid) == 0:
             continue
         C = s.points[s.valid]
-        cov = _point_covariances(res, s, C.reshape(-1, 3), theta).reshape(C.shape[0], 4, 3, 3)
-        q, v = _squared_spacings(C, cov, cov)
-        ok = np.isfinite(v)
-        if not np.any(ok):
-            continue
-        all_q.append(q[ok])
-        all_v.append(v[ok])
-        per[s.name] = _combine(q[ok], v[ok])
+        # plus (1 mm)^2 per coordinate: no centre is known better than that
+        cov = _point_covariances(res, s, C.reshape(-1, 3), theta).reshape(C.shape[0], 4, 3, 3) + 1e-6 * np.eye(3)
+        q, v = _board_spacings(C, cov, s0)
+        all_q.append(q)
+        all_v.append(v)
+        per[s.name] = _combine(q, v)
     if not per:
         return None
     s2, var2 = _combine(np.concatenate(all_q), np.concatenate(all_v))
     spacing = math.sqrt(max(s2, 0.0))
     beta = spacing - s0
-    # widened by SPACING_SD_FACTOR: on clean simulated rigs the z of this estimate scatters
-    # with std 1.2-1.5 (the length correction rests on the noise model)
-    sd = SPACING_SD_FACTOR * math.sqrt(var2) / (2.0 * max(spacing, 1e-9))
-    per = {n: (math.sqrt(max(q2, 0.0)) - s0,
-               SPACING_SD_FACTOR * math.sqrt(v2) / (2.0 * max(math.sqrt(max(q2, 0.0)), 1e-9)))
+    sd = math.sqrt(var2) / (2.0 * max(spacing, 1e-9))
+    per = {n: (math.sqrt(max(q2, 0.0)) - s0, math.sqrt(v2) / (2.0 * max(math.sqrt(max(q2, 0.0)), 1e-9)))
            for n, (q2, v2) in per.items()}
     limit = z_critical(ALPHA, 1)
     evidence = (Evidence("spacing - configured", beta, limit * sd,

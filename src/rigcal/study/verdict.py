@@ -323,6 +323,55 @@ def inject(rig: PopulationRig, fault: str) -> Fault | None:
     return FAULTS[fault](rig, rng)
 
 
+def true_unit_variances(rig: PopulationRig, units) -> np.ndarray:
+    """(units,) the variance of every noise unit (:class:`rigcal.problem.noise.DetectionUnits`)
+    as the rig's noise was drawn - also where the noise model cannot say it (an isotropic
+    camera's depth noise does not grow with range; a radar's Cartesian noise is not angular)."""
+    out = np.zeros(units.size)
+    for u in range(units.size):
+        name, comp = units.groups[units.group[u]]
+        nz, scale = rig.noise[name], float(units.scale[u])
+        if nz["model"] in ("isotropic", "cartesian"):
+            out[u] = nz["sigma_m"] ** 2
+        elif nz["model"] == "stereo":
+            out[u] = nz["sigma_m"] ** 2 if comp == "lateral" else (nz["depth_sigma_at_1m_m"] * scale) ** 2
+        elif comp == "range":
+            out[u] = nz["range_sigma_m"] ** 2
+        else:
+            out[u] = (math.radians(nz[f"{comp}_sigma_deg"]) * scale) ** 2
+    return out
+
+
+#: a 1 % scale is visible when it is at least this many Cramer-Rao std of the scale
+VISIBLE_STD = 3.5
+
+
+def scale_bound(rig: PopulationRig, name: str) -> float:
+    """The Cramer-Rao std of sensor ``name``'s relative scale on ``rig``: the best linear
+    unbiased estimate's std in the linearised model of every pair's residuals, at the true poses
+    and with the true noise (:func:`rigcal.problem.mistakes.fit_efficient`). No estimator that
+    knows only the detections does better; a 1 % scale below :data:`VISIBLE_STD` of it cannot be
+    told from noise at the verdict's levels."""
+    from rigcal.problem.consistency import pair_residuals
+    from rigcal.problem.initialise import default_reference
+    from rigcal.problem.mistakes import fit_efficient, scale_columns
+    from rigcal.problem.noise import detection_units
+
+    ds = rig.dataset
+    ref = default_reference(ds)
+    poses = {n: rig.sim.truth_T(ref, n) for n in ds.names}
+    units = detection_units(ds)
+    res = pair_residuals(ds, poses, ref, units, lambda names: np.zeros((6 * len(names),) * 2),
+                         theta=np.full(len(units.groups), 1e-4))
+    if res is None:
+        return math.inf
+    col = scale_columns(res).get(name)
+    if col is None:
+        return math.inf
+    _, var, _ = fit_efficient(res, col[:, None], None, true_unit_variances(rig, units))
+    return float(math.sqrt(var[0]))
+
+
 # --------------------------------------------------------------------------------------------
 # running
 
@@ -343,6 +392,8 @@ class Run:
     unfitted_pairs: tuple[str, ...] = ()
     named: bool = False
     radars: int = 0  # 2D and 3D radars of the rig
+    visible: bool = True  # a 1 % scale: at least VISIBLE_STD Cramer-Rao std (scale_bound)
+    bound: float = math.nan  # that std (a 1 % scale fault), else NaN
 
 
 def _outcome(result) -> str:
@@ -402,6 +453,7 @@ def run_rig(index: int, seed: int, modes: Sequence[str], faults: Sequence[str]) 
             continue
         dataset = rig.dataset if f is None else f.dataset
         opts = {} if f is None else {k: v for k, v in f.options.items() if k == "initial"}
+        bound = scale_bound(rig, f.sensors[0]) if fault == "scale_1pct" else math.nan
         for mode in modes:
             result, error = calibrate_run(dataset, mode, opts)
             outcome = "refused" if result is None else _outcome(result)
@@ -415,7 +467,8 @@ def run_rig(index: int, seed: int, modes: Sequence[str], faults: Sequence[str]) 
                     named = named or excluded
             out.append(Run(index, mode, fault, rig.num_boards, outcome,
                            tuple(c.name for c in result.verdict.failed) if result is not None else (),
-                           text, _unfitted(result, dataset), named, len(_radars(rig.dataset))))
+                           text, _unfitted(result, dataset), named, len(_radars(rig.dataset)),
+                           not bound > 0.01 / VISIBLE_STD, bound))
     return out
 
 
@@ -448,11 +501,13 @@ def summarise(runs: Sequence[Run], min_boards: int = 10) -> dict:
     # a single 2D radar's translation absorbs most of an offset: the offset faults also with
     # two or more radars
     groups += [(f"{f} (2+ radars)", f, 2) for f in ("offset_zero", "offset_side")]
+    # a 1 % scale also on the rigs where it is at least VISIBLE_STD Cramer-Rao std
+    groups += [(f"scale_1pct (>= {VISIBLE_STD:g} CR std)", "scale_1pct", -1)]
     for label, fault, radars in groups:
         rows = {}
         for m in modes:
             rs = [r for r in runs if r.mode == m and r.fault == fault and r.boards >= min_boards
-                  and r.radars >= radars]
+                  and r.radars >= radars and (radars >= 0 or r.visible)]
             if rs:
                 rows[m] = {"rigs": len(rs), "caught": sum(detected(r) for r in rs),
                            "named": sum(r.named and detected(r) for r in rs)}
@@ -468,5 +523,5 @@ def _count(items) -> dict:
     return out
 
 
-__all__ = ["FAULTS", "FAULT_NAMES", "Fault", "PopulationRig", "Run", "detected", "draw_rig", "inject",
-           "run_rig", "summarise", "three_radar_rig"]
+__all__ = ["FAULTS", "FAULT_NAMES", "VISIBLE_STD", "Fault", "PopulationRig", "Run", "detected", "draw_rig",
+           "inject", "run_rig", "scale_bound", "summarise", "three_radar_rig", "true_unit_variances"]

@@ -270,7 +270,7 @@ def test_a_radar_scale_is_judged_under_the_noise_with_the_scale_free():
 def test_under_the_alternative_a_sensor_noise_drops_only_by_what_the_parameter_explains():
     # the real Prius data's first 16 boards: with lidar1's scale free its x noise went from 7.4 mm
     # to the floor (the pair's noise re-split onto camera1's lateral axis) while lidar1's
-    # residuals dropped ~1 %, and a 0.52 % scale was flagged at 4.5 std; 29 boards: 0.19 %, pass
+    # residuals hardly changed, and a 0.52 % scale was flagged at 4.5 std; 29 boards: 0.19 %, pass
     from rigcal.io.dataset.manifest import load_manifest
 
     prius = load_manifest(EXAMPLES / "prius" / "rig.yaml")
@@ -279,7 +279,7 @@ def test_under_the_alternative_a_sensor_noise_drops_only_by_what_the_parameter_e
     rows = np.ones(res.r.size, dtype=bool)
     alt = under_alternative(res, scale_columns(res)["lidar1"], rows, "lidar1")
     own = [i for i, g in enumerate(res.units.groups) if g[0] == "lidar1"]
-    assert np.all(alt.theta[own] >= 0.9 * res.theta[own])
+    assert np.all(alt.theta[own] >= 0.5 * res.theta[own])  # was: x to the floor
     assert scale_check(res).status == PASS
 
 

@@ -7,8 +7,10 @@ flagged (goal: at most 1 % per mode, none for a pair the mode did not fit), unde
 refused. Then the first ``--fault-rigs`` rigs again with each injected mistake
 (:data:`rigcal.study.verdict.FAULTS`): how often the verdict catches it among rigs with at
 least 10 boards (goal: 95 % in every mode that can see it) and names it. A 1 % scale is also
-tallied over the rigs where it is at least 3.5 Cramer-Rao std of that sensor's scale
-(:func:`rigcal.study.verdict.scale_bound`; each run's bound is in ``--json``).
+tallied over the rigs where a mode can see it: at least
+:func:`rigcal.study.verdict.visible_std` Cramer-Rao std of that sensor's scale (the test's
+Bonferroni level plus 1.64 for 95 % power; :func:`rigcal.study.verdict.scale_bound`; each run's
+bound is in ``--json``).
 
 Usage: python benchmarks/verdict.py [--rigs N] [--fault-rigs M] [--seed S] [--modes mcpe,fcpe,pse]
        [--faults f1,f2,...] [--first I] [--minutes T] [--json FILE]

@@ -434,3 +434,38 @@ def test_extract_by_target_definition(vicon):
     m = extract_target_camera(vicon["cyl"], vicon["camera"], cylinder, T_exp)
     assert isinstance(m, Measurement), m
     assert 42_000 < m.quality["area_px"] < 55_000
+
+
+def test_checkerboard_corners_of_the_mocap_scenes_views_are_at_the_truth_to_hundredths_of_a_pixel():
+    """Issue 23: the corners the extractor finds in the simulated session's views (its
+    renderer, its cameras - pinhole and radtan -, its 7 x 6 grid of 29 mm squares at 1.9-2.8
+    m) lie 0.02-0.06 px RMS from the truth's projection, the same in every frame of a view
+    (image noise adds 0.01 px). Each view's pose is nevertheless 0.1-2.5 mrad off:
+    the grid is small (174 x 145 mm, 70-100 px), so that is what such corners give, not an
+    error of the extractor, the renderer or the camera model."""
+    from rigcal.extract.camera import extract_target_camera
+    from rigcal.sim.mocap import render_image
+    from rigcal.sim.mocap_scene import default_rig
+    from rigcal.targets.templates import diamond_target
+
+    target = diamond_target(0.5, 0.029, rows=6, cols=7, name="diamond")
+    rng = np.random.default_rng(23)
+    flip = np.diag([1.0, -1.0, -1.0])  # the plate faces the camera
+    for sensor in default_rig()[1:]:
+        cam = sensor.model
+        for k, (tilt, dist) in enumerate([((0.3, -0.2, 0.4), 2.0), ((-0.25, 0.35, -0.6), 2.7)]):
+            T = from_rt(so3_exp(np.array(tilt)) @ flip, [0.1 * (k - 0.5), -0.05, dist])
+            truth, _ = cam.project(transform_points(T, target.camera_keypoints))
+            errs = []
+            for noise in (0.0, 1.8, 1.8):
+                img = render_image(cam, T, target, rng, noise_sigma=noise).image
+                m = extract_target_camera(img, cam, target, T, sensor=sensor.name, t_ns=0)
+                assert isinstance(m, Measurement), m
+                errs.append(m.keypoints - truth)
+            e = np.array(errs)
+            rms = float(np.sqrt(np.mean(e ** 2)))
+            assert rms < 0.1, (sensor.name, k, rms)  # measured 0.024-0.060 px
+            assert np.all(np.abs(e.mean(axis=1)) < 0.06), (sensor.name, k, e.mean(axis=1))  # <= 0.036
+            # the error is the view's, not the noise's: the noisy frames agree with the clean one
+            # (measured 0.007-0.009 px)
+            assert float(np.sqrt(np.mean((e[1:] - e[0]) ** 2))) < 0.02

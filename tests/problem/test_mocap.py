@@ -566,3 +566,55 @@ def test_an_offset_the_pose_absorbs_is_undetermined_and_widens_the_covariance():
     assert still.sensors["camera"].time_offset_status == "none"
     assert np.trace(fit.result.sensors["camera"].covariance[3:, 3:]) > \
         2 * np.trace(still.result.sensors["camera"].covariance[3:, 3:])
+
+
+def _affine_view_holds(rng, holds=4, frames=5, affine_px=0.03, pixel_sigma=0.01):
+    """A camera's corner grids of a diamond held still ``holds`` times under an exact MCS,
+    each view's grid distorted in the image by its own affine error (a shift and a linear
+    part of ``affine_px`` std each at the grid's edge, the same in every frame of the hold:
+    what OpenCV's detector makes of a small grid, measured in the simulated session) plus
+    ``pixel_sigma`` of noise per corner and frame; and the true T_robot_camera."""
+    rig, clean = _camera_holds(rng, holds=holds, frames=frames, mcs_rad=0.0, mcs_m=0.0, pixel_sigma=0.0)
+    obs = []
+    for h in range(holds):
+        uv = clean[h * frames].measured
+        c = uv.mean(axis=0)
+        x, y = ((uv - c) / np.abs(uv - c).max()).T
+        a = rng.normal(0, affine_px, 6)
+        bias = np.column_stack([a[0] + a[2] * x + a[3] * y, a[1] + a[4] * x + a[5] * y])
+        for o in clean[h * frames:(h + 1) * frames]:
+            obs.append(TargetObservation(o.sensor, o.target, o.t_ns, o.T_robot_target,
+                                         o.measured + bias + rng.normal(0, pixel_sigma, uv.shape),
+                                         o.keypoints_target))
+    return rig, obs
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="issue 23, not fixed: the noise model has no per-view affine "
+                   "error of a camera's grid; measured median NEES6 0.017 (stds ~18x too wide)")
+def test_a_detectors_affine_error_per_view_is_neither_hidden_nor_blown_up():
+    """Issue 23: a corner detector errs on one view mostly by an affine distortion of the
+    small grid (0.02-0.04 px, the same in every frame; 97 % or more of each view's pose error
+    in the simulated session), and for a small grid those directions are nearly the pose's.
+    The view component has them taken out and the isotropic per-hold one over-claims them:
+    with nothing but such errors (exact MCS) the 8 sessions' NEES6 are 0.01-0.06, median
+    0.017 (chi2(6): 5.35). A per-hold affine component (prototype, not merged) gave a median
+    of 1.95 here - too wide still - and 7.4-13 on three cameras of the scene (too narrow)."""
+    from scipy.stats import chi2
+
+    from rigcal.geometry.se3 import se3_log
+    from rigcal.problem.mocap import calibrate_mocap_fit
+
+    nees, affine = [], []
+    for seed in range(8):
+        rig, obs = _affine_view_holds(np.random.default_rng(100 + seed))
+        sensor = MocapSensor("camera", SensorKind.CAMERA, camera=rig.camera, sigma=1.0)
+        fit = calibrate_mocap_fit([sensor], obs, {"camera": rig.T_robot_camera})
+        est = fit.result.sensors["camera"]
+        e = se3_log(invert(est.T_reference_sensor) @ rig.T_robot_camera)
+        nees.append(float(e @ np.linalg.solve(est.covariance, e)))
+        affine.append(fit.sensors["camera"].components.get("view_affine_px", 0.0))
+    inside = np.mean(np.array(nees) < chi2.ppf(0.95, 6))
+    assert inside >= 0.75, nees
+    assert 0.5 * 5.35 < np.median(nees) < 2.0 * 5.35, nees  # chi2(6) median 5.35
+    assert all(0.01 < a < 0.06 for a in affine), affine  # 0.03 px drawn

@@ -456,20 +456,25 @@ def under_alternative(res: PairResiduals, column: np.ndarray, rows: np.ndarray, 
     v0 = np.maximum(M @ res.theta, 1e-8)
     a = np.where(rows[:, None], M[:, own] / v0[:, None] ** 2, 0.0)
     per_unit = np.maximum(np.sum(a * M[:, own], axis=0), 1e-300)
+
+    def fitted(v: np.ndarray) -> np.ndarray:
+        # the residuals with the poses and the parameter fitted, weighted by 1 / v
+        w = np.where(rows, 1.0 / v, 0.0)
+        return res.r + X @ np.linalg.lstsq(X.T @ (X * w[:, None]), -(X.T @ (w * res.r)), rcond=1e-12)[0]
+
+    # what the parameter explains, fitted under the null's weights: each of the sensor's
+    # components drops by that, no more (else it re-splits a pair's noise: on the real Prius
+    # data lidar1's x noise went from 7.4 mm to the floor while its residuals hardly changed, and
+    # a 0.5 % scale was flagged); not under the lowered noise, whose refit pulls the poses
+    # towards that sensor and shrinks its residuals by itself
+    r = fitted(v0)
+    least = res.theta.copy()
+    least[own] = np.maximum(res.theta[own] - np.maximum(a.T @ (res.r**2 - r**2), 0.0) / per_unit, 0.0)
     out = res
-    for _ in range(rounds):
-        w = np.where(rows, 1.0 / np.maximum(out.M @ out.theta, 1e-8), 0.0)
-        step = np.linalg.lstsq(X.T @ (X * w[:, None]), -(X.T @ (w * res.r)), rcond=1e-12)[0]
-        r = res.r + X @ step
+    for k in range(rounds):
+        if k:
+            r = fitted(np.maximum(out.M @ out.theta, 1e-8))
         theta = estimate_theta_best(r[rows], res.M[rows], m / max(m - n, 1), batches=res.batches[rows])
-        # each of the sensor's components drops by what the alternative explains in its
-        # residuals, no more (else it re-splits a pair's noise: on the real Prius data lidar1's
-        # x noise went from 7.4 mm to the floor while its residuals hardly changed, and a 0.5 %
-        # scale was flagged) - measured with the null's weights: a refit under the lowered
-        # noise pulls the poses towards that sensor and shrinks its residuals by itself
-        if out is res:  # what the parameter explains: its fit under the null's weights
-            least = res.theta.copy()
-            least[own] = np.maximum(res.theta[own] - np.maximum(a.T @ (res.r**2 - r**2), 0.0) / per_unit, 0.0)
         theta = np.maximum(theta, least)
         out = replace(res, theta=theta, region=noise_region(res.M[rows], theta))
     return out

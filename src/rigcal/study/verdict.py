@@ -512,17 +512,16 @@ def summarise(runs: Sequence[Run], min_boards: int = 10) -> dict:
             "checks": _count([c for r in rs for c in r.failed]),
         }
     faults = {}
-    groups = [(f, f, 0) for f in FAULT_NAMES]
+    groups = [(f, f, lambda r: True) for f in FAULT_NAMES]
     # a single 2D radar's translation absorbs most of an offset: the offset faults also with
     # two or more radars
-    groups += [(f"{f} (2+ radars)", f, 2) for f in ("offset_zero", "offset_side")]
+    groups += [(f"{f} (2+ radars)", f, lambda r: r.radars >= 2) for f in ("offset_zero", "offset_side")]
     # a 1 % scale also on the rigs where the modes can see it (visible_std)
-    groups += [("scale_1pct (visible)", "scale_1pct", -1)]
-    for label, fault, radars in groups:
+    groups += [("scale_1pct (visible)", "scale_1pct", lambda r: r.visible)]
+    for label, fault, among in groups:
         rows = {}
         for m in modes:
-            rs = [r for r in runs if r.mode == m and r.fault == fault and r.boards >= min_boards
-                  and r.radars >= radars and (radars >= 0 or r.visible)]
+            rs = [r for r in runs if r.mode == m and r.fault == fault and r.boards >= min_boards and among(r)]
             if rs:
                 rows[m] = {"rigs": len(rs), "caught": sum(detected(r) for r in rs),
                            "named": sum(r.named and detected(r) for r in rs)}

@@ -129,7 +129,7 @@ def _mocap_fit(noise_px: float, within: int):
         noise_sigma=noise_px, sigma_nominal=0.5, unit="px", matches={"diamond": (within, 20)},
         hold_sigma=(5e-4, 2.5e-4), holds=4, name="camera1", time_offset_status="none",
         components={"view_px": 0.05, "capture_m": 0.0, "capture_rad": 0.0, "jitter_s": 0.0,
-                    "hold_m": 2.5e-4, "hold_rad": 5e-4},
+                    "hold_m": 2.5e-4, "hold_rad": 5e-4, "view_affine_px": 0.03},
     )
     return SimpleNamespace(sensors={"camera1": sensor})
 
@@ -142,6 +142,7 @@ def test_mocap_verdict_flags_noise_and_poor_matches():
     errors = next(c for c in ok.checks if c.name == "errors")  # the estimated components, a note
     assert errors.status == NOTE and "camera1 0.55 px per point" in errors.detail
     assert "0.25 mm / 0.5 mrad per hold (4 holds)" in errors.detail
+    assert "0.03 px affine distortion of the grid per hold" in errors.detail
     noisy = mocap_verdict(_mocap_fit(2.0, 19))  # 4 x the configured 0.5 px
     assert [c.name for c in noisy.failed] == ["noise"] and "camera1" in noisy.failed[0].detail
     poor = mocap_verdict(_mocap_fit(0.55, 6), {"camera1": ["z (std 80 mm)"]})

@@ -454,6 +454,8 @@ def mocap_error_text(f) -> str:
     view = c.get(f"view_{unit}", 0.0)
     if view > 0:
         parts.append(f"{view * scale:.2g} {shown} per keypoint and hold")
+    if c.get("view_affine_px", 0.0) > 0:
+        parts.append(f"{c['view_affine_px']:.2g} px affine distortion of the grid per hold")
     if c.get("capture_m", 0.0) > 0 or c.get("capture_rad", 0.0) > 0:
         parts.append(f"{1000 * c.get('capture_m', 0.0):.2g} mm / {1000 * c.get('capture_rad', 0.0):.2g} mrad "
                      "per capture")

@@ -15,7 +15,13 @@ residuals ``r`` (n,), whitened by its configured sigma, are modelled as
   frame's stamp [s] times the target's velocity relative to the robot ``xi_f``;
 * ``c_g ~ N(0, hold I6)`` per **hold** g (the target held still), through ``U_g = Jd_g L_g``,
   shared by every frame of the hold: the MCS's error of the still target and what the
-  extractor makes of one view.
+  extractor makes of one view;
+* ``d_g ~ N(0, view_affine I6)`` per hold of a camera's grid: an affine distortion of the
+  grid's image, what a corner detector gets wrong in one view. For a small grid it spans
+  nearly the same directions as the hold's pose error but in another shape (a target-pose
+  error of the same size in every direction would claim the view's strong directions as
+  uncertain as its weak ones); the likelihood chooses between them, and as a *family* the
+  per-hold components are kept when dropping them all costs more than the test's level.
 
 ``Jd_f`` maps a right perturbation of the frame's ``T_robot_target`` to the residuals. The
 variance components ``(s2, capture, jitter, hold)`` are estimated by restricted maximum
@@ -44,7 +50,10 @@ from scipy.stats import chi2, f as f_dist
 __all__ = ["COMPONENTS", "Components", "effective_dof", "fit_components", "sandwich", "widening"]
 
 #: the random effects besides the per-point noise, in the order of the parameters
-COMPONENTS = ("capture", "jitter", "hold_rot", "hold")
+COMPONENTS = ("capture", "jitter", "hold_rot", "hold", "view_affine")
+#: components that model the same errors in different shapes: the last of a family is kept
+#: when dropping the whole family costs more than LIKELIHOOD_RATIO
+FAMILIES = {"hold_rot": "hold", "hold": "hold", "view_affine": "hold"}
 #: the grouped component (a random offset per keypoint coordinate and hold), after COMPONENTS
 VIEW = "view"
 #: the loading of the view component's part in the pose directions (taken out of it)
@@ -274,15 +283,27 @@ def fit_components(r: np.ndarray, X: np.ndarray, loadings: Mapping[str, np.ndarr
     # otherwise be estimated from almost nothing (its few degrees of freedom then widen the
     # covariance for nothing)
     off: frozenset[int] = frozenset()
+    family_ref: dict[str, float] = {}
     phi, dev = fit(off, [np.log(v0) + np.r_[0.0, np.full(m, start)] for start in (0.5, -3.0)])
     while True:
         live = [i for i in range(1, m + 1) if i not in off and phi[i] > np.log(v0) - 12.0]
-        trials = [(fit(off | {i}, [phi]), i) for i in live]
-        if not trials:
+        trials = sorted(((fit(off | {i}, [phi]), i) for i in live), key=lambda t: t[0][1])
+        chosen = None
+        for (phi_d, dev_d), i in trials:
+            # the last one of a family of components (the per-hold errors) is tested against
+            # the deviance before any of its family was dropped: two components that explain
+            # the same errors each cost little to drop while the other takes over
+            family = FAMILIES.get(f.names[i - 1])
+            others = [j for j in live if j != i and FAMILIES.get(f.names[j - 1]) == family]
+            ref = dev if family is None or others else family_ref.get(family, dev)
+            if dev_d - ref <= LIKELIHOOD_RATIO:
+                chosen = (phi_d, dev_d, i, family)
+                break
+        if chosen is None:
             break
-        (phi_d, dev_d), i = min(trials, key=lambda t: t[0][1])
-        if dev_d - dev > LIKELIHOOD_RATIO:
-            break
+        phi_d, dev_d, i, family = chosen
+        if family is not None:
+            family_ref.setdefault(family, dev)
         off = off | {i}
         phi, dev = phi_d, dev_d
     s2, th = f.theta(phi)

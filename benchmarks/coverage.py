@@ -90,6 +90,8 @@ def main() -> int:
                 for k, v in m["per_sensor"].items())
             print(f"  {model:14} {kinds}  (naive 6-DOF {m['naive_inside_6dof']:.2f}; {m['failed']} failed; "
                   f"{time.perf_counter() - t0:.0f} s)", flush=True)
+            for k, why in m["failures"]:
+                print(f"    trial {k} failed: {why}", flush=True)
     return 0
 
 

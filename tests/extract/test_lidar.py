@@ -21,7 +21,7 @@ from rigcal.extract import (
     extract_lidar_target,
     prepare_template,
 )
-from rigcal.extract.lidar import ring_ends
+from rigcal.extract.lidar import ring_edge_rays, ring_ends
 from rigcal.io.clouds import read_point_cloud
 from rigcal.recording import PointCloudFrame
 
@@ -287,6 +287,35 @@ def test_ring_ends_are_half_a_step_beyond_the_last_returns(sim):
     # a gap splits a ring into two runs
     gap = np.vstack([pts[:40], pts[60:]])
     assert ring_ends(gap, math.radians(2.0), step).shape == (4, 3)
+
+
+def test_ring_edge_rays_are_each_rings_last_ray_and_the_next(sim):
+    """Two rings across a wall from -10 to +10 deg azimuth with range noise: each ring's
+    outermost rays and the rays one step beyond them, exact whatever the noise; an end whose
+    next ray lies outside the azimuth window, or after a gap, is left out."""
+    rng = np.random.default_rng(5)
+    step = math.radians(0.2)
+    az = np.arange(math.radians(-10), math.radians(10) + 1e-9, step)
+    rows = []
+    for el in (math.radians(-1.0), math.radians(1.0)):
+        d = np.column_stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.full(len(az), np.sin(el))])
+        rows.append(d * (2.0 + rng.normal(0, 0.015, len(az)))[:, None])
+    pts = np.vstack(rows)
+    rays = ring_edge_rays(pts, math.radians(2.0), step)
+    assert rays.shape == (4, 6)
+    np.testing.assert_allclose(np.linalg.norm(rays[:, :3], axis=1), 1.0)
+    end = np.degrees(np.arctan2(rays[:, 1], rays[:, 0]))
+    nxt = np.degrees(np.arctan2(rays[:, 4], rays[:, 3]))
+    assert sorted(np.round(end, 9)) == pytest.approx([-10.0, -10.0, math.degrees(az[-1]), math.degrees(az[-1])])
+    np.testing.assert_allclose(np.abs(nxt - end), 0.2, atol=1e-9)
+    assert np.all(np.abs(nxt) > np.abs(end))  # beyond the ends
+    np.testing.assert_allclose(rays[:, 2], rays[:, 5], atol=1e-12)  # same elevation
+    # the lidar looks only up to +10.05 deg: the left ends' next rays are not looked at
+    fov = (math.radians(-50.0), math.radians(10.05))
+    assert ring_edge_rays(pts, math.radians(2.0), step, fov).shape == (2, 6)
+    # a gap next to an end: that end is not the plate's edge
+    gapped = np.vstack([np.delete(rows[0], [2], axis=0), rows[1]])
+    assert ring_edge_rays(gapped, math.radians(2.0), step).shape == (3, 6)
 
 
 def test_extract_by_target_definition(sim, rays):

@@ -16,9 +16,12 @@ from rigcal.problem.pairs import pair_data
 from rigcal.problem.residuals import (
     MODEL_POINT,
     MODEL_RADAR2D,
+    MODEL_RANGE,
+    MODEL_RAY_EDGE,
     MODEL_SURFACE,
     elevation_limit_residuals,
     observation_residuals,
+    ray_plane_hits,
 )
 from rigcal.problem.solver import ALL_FREE, ElevationLimits, Observations, PoseBlock, Problem, solve
 from rigcal.problem.verify import kkt_violations, reference_solve
@@ -146,8 +149,9 @@ def _case(seed: int, n: int, min_abs_elevation: float, max_abs_elevation: float)
     return rng, np.repeat(T_W_A[None], n, 0), np.repeat(T_W_B[None], n, 0), points_A
 
 
-def _function(kind: str, rng: np.random.Generator, n: int):
-    """(f(TA, TB) -> (r, JA, JB)) for one residual family with random whitening."""
+def _function(kind: str, rng: np.random.Generator, n: int, poses=None, points=None):
+    """(f(TA, TB) -> (r, JA, JB)) for one residual family with random whitening (the ray
+    models measure their rays at ``poses`` = (TA, TB) through ``points``)."""
     if kind == "elevation":
         max_el = np.full(n, 0.1)
         sigma = 0.01
@@ -159,6 +163,26 @@ def _function(kind: str, rng: np.random.Generator, n: int):
         sigma = rng.uniform(0.01, 0.2, (n, 1))
         return lambda TA, TB, P: observation_residuals(TA, TB, P, measured, sigma, MODEL_SURFACE,
                                                        normals_A=normals)
+    if kind in ("range", "ray_edge"):
+        # rays from B towards A's plane z = 0 (through the case's points dropped onto the plane),
+        # measured once at the case's poses: fixed in B
+        T_B_A = invert(poses[1][0]) @ poses[0][0]
+        q = points.copy()
+        q[:, 2] = 0.0
+        x = q @ T_B_A[:3, :3].T + T_B_A[:3, 3]
+        rho = np.linalg.norm(x, axis=1)
+        u = x / rho[:, None]
+        sigma = rng.uniform(0.01, 0.2, (n, 1))
+        if kind == "range":
+            measured = u * (rho + rng.normal(0.0, 0.05, n))[:, None]
+            return lambda TA, TB, P: observation_residuals(TA, TB, P, measured, sigma, MODEL_RANGE)
+        from rigcal.targets.surface import TargetSurface
+        from rigcal.targets.templates import diamond_target
+
+        surface = TargetSurface.of(diamond_target(side_m=8.0, square_m=0.5, rows=6, cols=7))
+        turn = matrix_from_rpy([0.0, 0.0, 0.01])
+        rays = np.column_stack([u, u @ turn.T])
+        return lambda TA, TB, P: observation_residuals(TA, TB, P, rays, sigma, MODEL_RAY_EDGE, surface=surface)
     model = MODEL_POINT if kind == "point3d" else MODEL_RADAR2D
     d = 3 if kind == "point3d" else 2
     measured = rng.normal(0.0, 3.0, (n, d))
@@ -184,12 +208,12 @@ def _central_differences(residuals, TA, TB, block: str, h: float = 1e-6) -> np.n
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
 @pytest.mark.parametrize("block", ["A", "B"])
-@pytest.mark.parametrize("kind", ["point3d", "radar2d", "elevation", "surface"])
+@pytest.mark.parametrize("kind", ["point3d", "radar2d", "elevation", "surface", "range", "ray_edge"])
 def test_jacobian_matches_central_differences_of_right_perturbation(kind, block, seed):
     """Contract: J[i, :, j] = d r_i / d xi_j with T <- T @ se3_exp(xi), xi = (omega, v)."""
     n = 12
     rng, TA, TB, P = _case(seed, n, 0.2, 0.6)  # |elevation| > 0.1: every hinge is active
-    f = _function(kind, rng, n)
+    f = _function(kind, rng, n, (TA, TB), P)
     r, JA, JB = f(TA, TB, P)
     J = JA if block == "A" else JB
     assert J.shape == r.shape + (6,)
@@ -212,6 +236,26 @@ def test_elevation_limit_is_zero_inside_the_field_of_view(seed):
     r = elevation_limit_residuals(TA, TB, P, np.full(n, 0.1), 0.01)[0]
     x = np.einsum("nij,nj->ni", invert(TB) @ TA, np.column_stack([P, np.ones(n)]))[:, :3]
     np.testing.assert_allclose(r[:, 0], (np.abs(elevation(x)) - 0.1) / 0.01, rtol=1e-12)
+
+
+def test_ray_plane_hits_and_the_range_residual_are_exact():
+    """A ray from B meets A's plane z = 0 where the geometry says, and a point measured on it
+    with a range error e has the range residual e / sigma."""
+    rng = np.random.default_rng(3)
+    T_W_A, T_W_B = _random_pose(rng), _random_pose(rng)
+    T_A_B = invert(T_W_A) @ T_W_B
+    q = np.column_stack([rng.uniform(-1, 1, 5), rng.uniform(-1, 1, 5), np.zeros(5)])
+    x = q @ invert(T_A_B)[:3, :3].T + invert(T_A_B)[:3, 3]
+    rho = np.linalg.norm(x, axis=1)
+    u = x / rho[:, None]
+    TA, TB = np.repeat(T_W_A[None], 5, 0), np.repeat(T_W_B[None], 5, 0)
+    h, s, *_ = ray_plane_hits(TA, TB, u)
+    np.testing.assert_allclose(h, q, atol=1e-12)
+    np.testing.assert_allclose(s, rho, rtol=1e-12)
+    e = rng.normal(0, 0.02, 5)
+    r, _, _ = observation_residuals(TA, TB, np.zeros((5, 3)), u * (rho + e)[:, None], np.full((5, 1), 0.01),
+                                    MODEL_RANGE)
+    np.testing.assert_allclose(r[:, 0], e / 0.01, rtol=1e-9)
 
 
 # --------------------------------------------------------------------------- field of view

@@ -99,3 +99,32 @@ def test_surface_is_immutable_and_checks_its_template():
         s.template[0, 0] = 1.0
     with pytest.raises(InputError, match="template"):
         TargetSurface("x", np.zeros((0, 3)))
+
+
+@pytest.mark.parametrize("which", ["diamond", "circle_board"])
+def test_a_plates_boundary_is_the_signed_distance_to_its_outline(which):
+    """Positive inside, zero on the outline, negative outside; its gradient is the inward
+    normal of the nearest side (checked by central differences); the cylinder has none."""
+    target = TARGETS[which]()
+    surface = TargetSurface.of(target)
+    assert surface.planar
+    rng = np.random.default_rng(4)
+    xy = _near(target, rng)[:, :2]
+    f, g = surface.boundary(xy)
+    # inside the plate's template (away from the holes' rims) the distance is positive
+    on = surface.boundary(target.template[:, :2])[0]
+    assert np.all(on >= -1e-9)
+    np.testing.assert_allclose(np.linalg.norm(g, axis=1), 1.0)
+    h = 1e-7
+    for k in range(2):
+        e = np.zeros(2)
+        e[k] = h
+        fd = (surface.boundary(xy + e)[0] - surface.boundary(xy - e)[0]) / (2 * h)
+        np.testing.assert_allclose(g[:, k], fd, atol=1e-5)
+    # a point moved out of the plate by d along the gradient's opposite has distance f - d
+    f2, _ = surface.boundary(xy - 0.001 * g)
+    np.testing.assert_allclose(f2, f - 0.001, atol=1e-9)
+    assert (f < 0).any() and (f > 0).any()
+    assert not TargetSurface.of(TARGETS["cylinder"]()).planar
+    with pytest.raises(ValueError, match="not a flat plate"):
+        TargetSurface.of(TARGETS["cylinder"]()).boundary(xy)

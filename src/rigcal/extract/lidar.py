@@ -70,6 +70,7 @@ __all__ = [
     "extract_lidar_target",
     "extract_target_lidar",
     "multi_start_icp",
+    "ring_edge_rays",
     "ring_ends",
     "score_clusters",
 ]
@@ -170,6 +171,25 @@ def score_clusters(
     return sorted(out, key=lambda s: s.score)
 
 
+def _rings(p: np.ndarray, vertical_step_rad: float):
+    """Every point's ring (points of one elevation: a split where the sorted elevations jump by
+    more than 0.3 vertical steps), elevation, and azimuth about the points' mean azimuth ``az0``
+    (so a target behind the lidar does not wrap): (ring, el, daz, az0)."""
+    el = np.arctan2(p[:, 2], np.hypot(p[:, 0], p[:, 1]))
+    az = np.arctan2(p[:, 1], p[:, 0])
+    az0 = math.atan2(float(np.mean(np.sin(az))), float(np.mean(np.cos(az))))
+    daz = (az - az0 + math.pi) % (2 * math.pi) - math.pi
+    order = np.argsort(el, kind="stable")
+    ring = np.zeros(len(p), dtype=int)
+    ring[order] = np.concatenate([[0], np.cumsum(np.diff(el[order]) > 0.3 * vertical_step_rad)])
+    return ring, el, daz, az0
+
+
+def _direction(el: float, az: float) -> np.ndarray:
+    ce = math.cos(el)
+    return np.array([ce * math.cos(az), ce * math.sin(az), math.sin(el)])
+
+
 def ring_ends(
     points: np.ndarray,
     vertical_step_rad: float,
@@ -186,13 +206,7 @@ def ring_ends(
     if p.shape[0] < 2:
         return np.zeros((0, 3))
     rng = np.linalg.norm(p, axis=1)
-    el = np.arctan2(p[:, 2], np.hypot(p[:, 0], p[:, 1]))
-    az = np.arctan2(p[:, 1], p[:, 0])
-    az0 = math.atan2(float(np.mean(np.sin(az))), float(np.mean(np.cos(az))))
-    daz = (az - az0 + math.pi) % (2 * math.pi) - math.pi
-    order = np.argsort(el, kind="stable")
-    ring = np.zeros(len(p), dtype=int)
-    ring[order] = np.concatenate([[0], np.cumsum(np.diff(el[order]) > 0.3 * vertical_step_rad)])
+    ring, el, daz, az0 = _rings(p, vertical_step_rad)
     half = 0.5 * horizontal_step_rad
     ends = []
     for r in np.unique(ring):
@@ -203,12 +217,58 @@ def ring_ends(
             if len(run) < 2:
                 continue
             for i, sign in ((run[0], -1.0), (run[-1], 1.0)):
-                a = az0 + daz[i] + sign * half
-                ce = math.cos(el[i])
-                ends.append(
-                    rng[i] * np.array([ce * math.cos(a), ce * math.sin(a), math.sin(el[i])])
-                )
+                ends.append(rng[i] * _direction(el[i], az0 + daz[i] + sign * half))
     return np.array(ends).reshape(-1, 3)
+
+
+#: a ring's end is used for the plate's edge only when the ring's last steps before it are
+#: regular: this many of them, each within RING_STEP_TOLERANCE of the azimuth step
+RING_END_RUN = 3
+RING_STEP_TOLERANCE = 0.25
+
+
+def ring_edge_rays(
+    points: np.ndarray,
+    vertical_step_rad: float,
+    horizontal_step_rad: float,
+    azimuth_fov_rad: tuple[float, float] | None = None,
+) -> np.ndarray:
+    """The rays between which each scan line leaves a plate: for every ring (points of one
+    elevation) of a target's returns ``points`` (N, 3) (sensor frame), at each of its two
+    outermost points, that point's unit direction ``u_end`` and the direction of the ring's next
+    ray beyond it ``u_next`` (one azimuth step further out, same elevation), which did not return
+    from the plate. (E, 6) rows ``[u_end, u_next]``; the directions are exact whatever the
+    range noise. An end is left out when the ring's last ``RING_END_RUN`` steps before it are
+    not regular (a gap: the plate's hole, a dropped return) or when its next ray lies outside
+    ``azimuth_fov_rad`` (lo, hi) [rad, counter-clockwise from +x]: there the ring ends where
+    the lidar stops looking, not at the plate's edge."""
+    p = check_points(points, "points", minimum=0)
+    if p.shape[0] < RING_END_RUN + 1:
+        return np.zeros((0, 6))
+    ring, el, daz, az0 = _rings(p, vertical_step_rad)
+    step = float(horizontal_step_rad)
+    out = []
+    for r in np.unique(ring):
+        idx = np.flatnonzero(ring == r)
+        if len(idx) < RING_END_RUN + 1:
+            continue
+        idx = idx[np.argsort(daz[idx], kind="stable")]
+        d = np.diff(daz[idx])
+        regular = np.abs(d - step) <= RING_STEP_TOLERANCE * step
+        for i, sign, ok in ((idx[0], -1.0, regular[:RING_END_RUN].all()),
+                            (idx[-1], 1.0, regular[-RING_END_RUN:].all())):
+            if not ok:
+                continue
+            a_end = az0 + daz[i]
+            a_next = a_end + sign * step
+            if azimuth_fov_rad is not None:
+                lo, hi = azimuth_fov_rad
+                if hi - lo < 2 * math.pi - 1e-9:
+                    rel = (a_next - lo) % (2 * math.pi)
+                    if rel > (hi - lo) % (2 * math.pi) + 1e-12:
+                        continue
+            out.append(np.concatenate([_direction(el[i], a_end), _direction(el[i], a_next)]))
+    return np.array(out).reshape(-1, 6)
 
 
 #: the coarse global search: the template's plane (its thinnest axis) laid on the cluster's

@@ -55,6 +55,7 @@ import numpy as np
 from rigcal.dataset import SensorKind
 from rigcal.errors import ConvergenceError, InputError, RigcalError
 from rigcal.extract.guidance import camera_view, lidar_view, motion_check
+from rigcal.extract.lidar import ring_edge_rays
 from rigcal.extract.result import (NO_CLUSTER, NO_CONTOUR, NO_POSE_DATA, ORIENTATION_AMBIGUOUS,
                                    TARGET_MOVING, ExtractionFailure)
 from rigcal.geometry.se3 import invert, transform_points
@@ -315,6 +316,8 @@ class _Context:
     #: per sensor, ``T_robot_sensor`` implied by each measurement with a fitted target pose
     #: (the lidar's ICP): what a wide search tells about a far-off guess
     found_poses: dict[str, list] = field(default_factory=dict)
+    #: per target, its surface (the flat plates' outlines for a lidar's ring ends)
+    surfaces: dict[str, TargetSurface] = field(default_factory=dict)
 
 
 def _motion(ctx: _Context, t_ns: int, target: str) -> tuple[bool, str, str]:
@@ -443,6 +446,33 @@ def _extract(frame: Any, sensor: SensorSpec, target: Target, T_st: np.ndarray, c
     )
 
 
+#: a scanning lidar's returns from a flat plate are the cluster's points within this many of
+#: its configured sigmas of the fitted plate (at least ``on_template_m``): the range noise
+#: whole, not cut at the extractor's on-template distance (cut at 1.3 sigma, its variance would
+#: be halved and the pose's uncertainty with it)
+PLATE_RETURN_SIGMAS = 4.0
+
+
+def _plate_returns(m: Any, sensor: SensorSpec, target: Target, ctx: _Context) -> np.ndarray | None:
+    """A lidar's returns from a flat plate (:data:`PLATE_RETURN_SIGMAS`), or None when the target
+    is no flat plate with a known outline, the lidar's scan pattern is not known, or the
+    extractor kept no cluster or fitted pose."""
+    cluster = m.extras.get("cluster_points") if m.extras else None
+    if sensor.lidar is None or cluster is None or m.T_sensor_target is None:
+        return None
+    surface = ctx.surfaces.get(target.name)
+    if surface is None:
+        surface = ctx.surfaces[target.name] = TargetSurface.of(target)
+    if not surface.planar:
+        return None
+    pts = np.asarray(cluster, dtype=float)
+    T_ts = invert(np.asarray(m.T_sensor_target, dtype=float))
+    d = surface.distance(transform_points(T_ts, pts))
+    tol = max(PLATE_RETURN_SIGMAS * float(sensor.sigma), float(ctx.config.extraction.on_template_m))
+    keep = d <= tol
+    return pts[keep] if keep.sum() >= 3 else None
+
+
 def _process(frame: Any, sensor: SensorSpec, tspec: TargetSpec, ctx: _Context):
     """(diagnostic, observation or None, measurement or None) of one target in one frame."""
     t = int(frame.t_ns)
@@ -479,10 +509,18 @@ def _process(frame: Any, sensor: SensorSpec, tspec: TargetSpec, ctx: _Context):
                   else target.lidar_keypoints)
         if source is not None:
             keypoints_target = source[m.keypoint_index]
-    obs = TargetObservation(sensor.name, tspec.name, t, T_rt, m.keypoints, keypoints_target,
+    measured, edge_rays = m.keypoints, None
+    if sensor.kind is SensorKind.LIDAR and keypoints_target is None:
+        plate = _plate_returns(m, sensor, target, ctx)
+        if plate is not None:
+            measured = plate
+            spec = sensor.lidar
+            edge_rays = ring_edge_rays(plate, spec.vertical_step_rad, spec.horizontal_step_rad,
+                                       spec.azimuth_fov_rad)
+    obs = TargetObservation(sensor.name, tspec.name, t, T_rt, measured, keypoints_target,
                             velocity=_velocity(ctx, t, tspec.name),
-                            pose_cov=_pose_cov(ctx, t, tspec.name, T_rt))
-    diag = MeasurementDiagnostic(status=KEPT, keypoints=len(m.keypoints),
+                            pose_cov=_pose_cov(ctx, t, tspec.name, T_rt), edge_rays=edge_rays)
+    diag = MeasurementDiagnostic(status=KEPT, keypoints=len(measured),
                                  correspondences=keypoints_target is not None,
                                  unit="px" if sensor.kind is SensorKind.CAMERA else "m", **row)
     return diag, obs, m

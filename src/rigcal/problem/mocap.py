@@ -45,7 +45,8 @@ from rigcal.errors import ConfigError, ConvergenceError, InputError, RigcalError
 from rigcal.geometry.se3 import adjoint, invert, se3_exp
 from rigcal.geometry.so3 import so3_log
 from rigcal.problem.numerics import single_threaded
-from rigcal.problem.residuals import MODEL_CAMERA, MODEL_POINT, MODEL_SURFACE
+from rigcal.problem.residuals import (MODEL_CAMERA, MODEL_POINT, MODEL_RANGE, MODEL_RAY_EDGE, MODEL_SURFACE,
+                                     ray_plane_hits)
 from rigcal.problem.result import CalibrationResult, SensorEstimate
 from rigcal.problem.solver import Observations, PoseBlock, PosePriors, Problem, solve
 from rigcal.problem.uncertainty import pose_std, relative_estimates
@@ -107,6 +108,13 @@ class TargetObservation:
     #: perturbation, rotation first; rad^2, m^2): the MCS streams' own scatter. None: unknown
     #: (the per-capture error is then estimated from the residuals alone)
     pose_cov: np.ndarray | None = None
+    #: (E, 6) for a scanning lidar's points on a flat plate: where each ring leaves the plate,
+    #: the unit directions ``[u_end, u_next]`` (sensor frame) of the ring's last ray on the plate
+    #: and its next ray, which missed it (:func:`rigcal.extract.lidar.ring_edge_rays`). Given
+    #: (even empty), the points are tied to the plate by their range along their rays and the
+    #: plate's in-plane pose by these ring ends (:mod:`rigcal.problem.residuals`,
+    #: ``MODEL_RANGE`` and ``MODEL_RAY_EDGE``); None: by the points' distance to the surface
+    edge_rays: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         where = f"observation of '{self.target}' by '{self.sensor}' at t = {self.t_ns} ns"
@@ -127,13 +135,17 @@ class TargetObservation:
             )
         if not np.all(np.isfinite(m)):
             raise InputError(f"{where}: measured has non-finite entries (NaN or inf)")
-        for key, shape in (("velocity", (6,)), ("pose_cov", (6, 6))):
+        for key, shape in (("velocity", (6,)), ("pose_cov", (6, 6)), ("edge_rays", (-1, 6))):
             v = getattr(self, key)
             if v is None:
                 continue
             a = np.array(v, dtype=float)
-            if a.shape != shape or not np.all(np.isfinite(a)):
-                raise InputError(f"{where}: {key} must be finite numbers of shape {shape}, got {a.shape}")
+            if key == "edge_rays" and a.size == 0:
+                a = a.reshape(0, 6)
+            if a.ndim != len(shape) or any(k not in (-1, d) for k, d in zip(shape, a.shape)) \
+                    or not np.all(np.isfinite(a)):
+                want = "(E, 6)" if key == "edge_rays" else str(shape)
+                raise InputError(f"{where}: {key} must be finite numbers of shape {want}, got {a.shape}")
             a.setflags(write=False)
             object.__setattr__(self, key, a)
         if self.keypoints_target is not None:
@@ -303,19 +315,70 @@ def _target_blocks(observations, options) -> list[int]:
     return out
 
 
-def _add(items, key, block, board, points, measured, normals=None) -> None:
+def _add(items, key, block, board, points, measured, normals=None, sigma=None) -> None:
     if len(points) == 0:
         return
-    d = items.setdefault(key, {"frame": [], "points": [], "measured": [], "board": [], "normals": []})
+    d = items.setdefault(key, {"frame": [], "points": [], "measured": [], "board": [], "normals": [],
+                               "sigma": []})
     d["frame"] += [block] * len(points)
     d["points"].append(points)
     d["measured"].append(measured)
     d["board"].append(np.full(len(points), board))
     if normals is not None:
         d["normals"].append(normals)
+    if sigma is not None:
+        d["sigma"].append(sigma)
 
 
-def _build(sensors, observations, poses, surfaces, options, boards=None, block_poses=None, phase="centroid"):
+#: a ring end ties the plate's edge only where the ring crosses it at a fair angle: the step
+#: between the two rays' hits must cross the outline by at least this fraction of its length
+EDGE_MIN_CROSSING = 0.3
+#: ... and away from the outline's corners by this many steps
+EDGE_CORNER_STEPS = 3.0
+
+
+def _edge_items(o: TargetObservation, T_R_S: np.ndarray, T_R_T: np.ndarray, surface: TargetSurface):
+    """The ring ends of a lidar observation usable under the current poses, and each one's
+    std: the step between its two rays' hits across the plate's outline over sqrt(12) (where
+    the ring crosses the edge is uniform over the step). (rays (k, 6), sigma (k, 1))."""
+    rays = o.edge_rays
+    if rays is None or len(rays) == 0:
+        return np.zeros((0, 6)), np.zeros((0, 1))
+    k = len(rays)
+    TA = np.broadcast_to(T_R_T, (2 * k, 4, 4))
+    TB = np.broadcast_to(T_R_S, (2 * k, 4, 4))
+    h, srange, *_ = ray_plane_hits(TA, TB, np.concatenate([rays[:, :3], rays[:, 3:]]))
+    f, _ = surface.boundary(h[:, :2])
+    cross = f[:k] - f[k:]
+    length = np.linalg.norm(h[:k] - h[k:], axis=1)
+    # near a corner of the outline the nearest side changes between (or under) the two rays
+    corner = np.minimum(surface.corner_distance(h[:k, :2]), surface.corner_distance(h[k:, :2]))
+    ok = (srange[:k] > 0) & (srange[k:] > 0) & (length > 0) & (cross >= EDGE_MIN_CROSSING * length) \
+        & (corner > EDGE_CORNER_STEPS * length)
+    return rays[ok], (cross[ok] / np.sqrt(12.0))[:, None]
+
+
+def _edge_selection(sensors, observations, poses, surfaces, options, block_poses=None) -> dict[int, tuple]:
+    """Per lidar observation with ring ends on a flat plate, the ends usable under the current
+    poses and their stds (:func:`_edge_items`): chosen once, when the surface phase starts, and
+    kept (chosen again at every solve, an end at a threshold could come and go and the
+    calibration never settle)."""
+    names = {s.name: s for s in sensors}
+    target_of = _target_blocks(observations, options)
+    free = options.target_pose_sigma is not None
+    out = {}
+    for i, o in enumerate(observations):
+        if o.edge_rays is None or names[o.sensor].kind != SensorKind.LIDAR or o.keypoints_target is not None \
+                or o.target not in surfaces or not surfaces[o.target].planar:
+            continue
+        block = f"target:{target_of[i]}"
+        T_R_T = block_poses.get(block, o.T_robot_target) if block_poses and free else o.T_robot_target
+        out[i] = _edge_items(o, poses[o.sensor], T_R_T, surfaces[o.target])
+    return out
+
+
+def _build(sensors, observations, poses, surfaces, options, boards=None, block_poses=None, phase="centroid",
+           edges=None):
     blocks = [PoseBlock(s.name, poses[s.name]) for s in sensors]
     names = {s.name: s for s in sensors}
     # (sensor, model, target, part) -> the items of one residual batch; point and pixel
@@ -341,6 +404,18 @@ def _build(sensors, observations, poses, surfaces, options, boards=None, block_p
         model = MODEL_CAMERA if sensor.kind == SensorKind.CAMERA else MODEL_POINT
         if o.keypoints_target is not None:
             pts, meas = o.keypoints_target, o.measured
+        elif phase == "surface" and sensor.kind == SensorKind.LIDAR and o.edge_rays is not None \
+                and surfaces[o.target].planar:
+            # a scanning lidar's points on a plate: each point's range along its ray, the
+            # plate's outline where the rings leave it
+            if edges is not None and i in edges:
+                rays, sig = edges[i]
+            else:
+                T_R_T = block_poses.get(block, o.T_robot_target) if block_poses and free else o.T_robot_target
+                rays, sig = _edge_items(o, poses[o.sensor], T_R_T, surfaces[o.target])
+            _add(items, (o.sensor, MODEL_RAY_EDGE, o.target, "edge"), block, i, np.zeros((len(rays), 3)),
+                 rays, sigma=sig)
+            pts, meas, model = np.zeros((len(o.measured), 3)), o.measured, MODEL_RANGE
         elif phase == "surface" and sensor.kind == SensorKind.LIDAR:
             T_R_T = block_poses.get(block, o.T_robot_target) if block_poses and free else o.T_robot_target
             pts, normals, keep = _closest_on_surface(o, sensor, poses[o.sensor], T_R_T, surfaces[o.target], options)
@@ -351,14 +426,17 @@ def _build(sensors, observations, poses, surfaces, options, boards=None, block_p
                 continue
             meas = o.measured[keep]
         # a surface batch per target: its closest points follow the poses inside the solve
-        part = "surface" if model == MODEL_SURFACE else ""
+        part = {MODEL_SURFACE: "surface", MODEL_RANGE: "range"}.get(model, "")
         _add(items, (o.sensor, model, o.target if part else "", part), block, i, pts, meas, normals)
     batches = []
     for (name, model, target, part), d in items.items():
         s = names[name]
         meas = np.concatenate(d["measured"])
         surface = model == MODEL_SURFACE
-        sigma = np.full((len(meas), 1 if surface else meas.shape[1]), s.sigma)
+        if model == MODEL_RAY_EDGE:
+            sigma = np.concatenate(d["sigma"])  # known: the scan's step, not the sensor's noise
+        else:
+            sigma = np.full((len(meas), 1 if model in (MODEL_SURFACE, MODEL_RANGE) else meas.shape[1]), s.sigma)
         batches.append(
             Observations(
                 label=f"{ROBOT}-{name}" + (f":{part}:{target}" if part else ""),
@@ -372,7 +450,7 @@ def _build(sensors, observations, poses, surfaces, options, boards=None, block_p
                 board=np.concatenate(d["board"]),
                 camera=s.camera,
                 normals=np.concatenate(d["normals"]) if surface else None,
-                surface=surfaces[target] if surface else None,
+                surface=surfaces[target] if surface or model == MODEL_RAY_EDGE else None,
             )
         )
     limits = []
@@ -613,24 +691,33 @@ def _default_shape(T_robot_target: np.ndarray) -> np.ndarray:
     return D + Ad @ D @ Ad.T
 
 
+def _noisy(b: Observations) -> bool:
+    """Whether a batch's rows are a mocap sensor's measurements, whitened by its configured
+    noise (a ring end's std is the scan's step, known: not scaled with the sensor's noise)."""
+    return b.label.startswith(ROBOT) and b.model != MODEL_RAY_EDGE
+
+
 def _rows(prob: Problem, sol):
     """Whitened residuals (m,), dense Jacobian (m, n_free), the layout, and per row the
-    observation index (-1: not an observation of a mocap sensor) and the sensor name."""
+    observation index (-1: not an observation of a mocap sensor), the sensor name and whether
+    its variance is known (a ring end: not the sensor's noise)."""
     from rigcal.problem.solver import _evaluate, prepare
 
     layout = prepare(prob)
     T = np.stack([sol.poses[p.name] for p in prob.poses])
     r, J, _, _ = _evaluate(prob, layout, T, "linear", 1.0, True)
     J = J.toarray() if hasattr(J, "toarray") else np.asarray(J)
-    row_obs, row_sensor = [], []
+    row_obs, row_sensor, row_known = [], [], []
     for b in prob.observations:
         ours = b.label.startswith(ROBOT)
         row_obs.append(np.repeat(np.where(ours, b.board, -1), b.dim))
         row_sensor += [b.sensor if ours else None] * (b.size * b.dim)
+        row_known.append(np.full(b.size * b.dim, ours and not _noisy(b)))
     extra = len(r) - layout.m_obs
     row_obs = np.concatenate(row_obs + [np.full(extra, -1)])
     row_sensor = np.array(row_sensor + [None] * extra, dtype=object)
-    return r, J, layout, row_obs, row_sensor
+    row_known = np.concatenate(row_known + [np.zeros(extra, dtype=bool)])
+    return r, J, layout, row_obs, row_sensor, row_known
 
 
 @dataclass
@@ -642,9 +729,10 @@ class _Linear:
     cols: np.ndarray  # the sensor's free columns in the problem
     frames: list[tuple[int, np.ndarray, np.ndarray]]  # (observation, row mask, Jd (n_f, 6))
     j_offset: np.ndarray | None  # (n,) w.r.t. the clock offset [s]; None: nothing moved
+    known: np.ndarray | None = None  # (n,) rows of known variance (ring ends); None: none
 
 
-def _linearise(r, J, layout, row_obs, row_sensor, name: str, T_R_S: np.ndarray,
+def _linearise(r, J, layout, row_obs, row_sensor, row_known, name: str, T_R_S: np.ndarray,
                observations: Sequence[TargetObservation], with_offset: bool) -> _Linear:
     rows = row_sensor == name
     cols = layout.cols[layout.index[name]]
@@ -663,7 +751,8 @@ def _linearise(r, J, layout, row_obs, row_sensor, name: str, T_R_S: np.ndarray,
             # time_offset = stamp - capture time: the pose at capture is T(t - offset)
             j[m] = -(Jd @ v)
     moved = with_offset and bool(np.any(j != 0.0))
-    return _Linear(rs, Js, cols, frames, j if moved else None)
+    known = row_known[rows]
+    return _Linear(rs, Js, cols, frames, j if moved else None, known if known.any() else None)
 
 
 def _loadings(lin: _Linear, observations: Sequence[TargetObservation], holds: Sequence[str]):
@@ -819,11 +908,11 @@ def _sensor_statistics(lin: _Linear, observations, holds, options: MocapOptions)
     groups, view_pose = _view_groups(lin, observations, holds)
     if view_pose.shape[1]:
         loads["view_pose"] = view_pose
-    comp = fit_components(lin.r, X, loads, floors, groups)
+    comp = fit_components(lin.r, X, loads, floors, groups, lin.known)
     prior = None
     if lin.j_offset is not None:
         prior = np.r_[np.zeros(6), 1.0 / options.time_offset_sigma_s]
-    parts = sandwich(X, loads, comp, prior, groups)
+    parts = sandwich(X, loads, comp, prior, groups, lin.known)
     # the components were estimated from few groups: the covariance widened so that a 6-DOF
     # region holds the truth as often as it says (Satterthwaite's degrees of freedom)
     k = widening(effective_dof(parts, comp, 6))
@@ -832,7 +921,7 @@ def _sensor_statistics(lin: _Linear, observations, holds, options: MocapOptions)
     offset_std, effect = float("nan"), 1.0
     if lin.j_offset is not None:
         offset_std = float(np.sqrt(max(cov_all[6, 6], 0.0)))
-        fixed_parts = sandwich(lin.Js, loads, comp, None, groups)
+        fixed_parts = sandwich(lin.Js, loads, comp, None, groups, lin.known)
         fixed = widening(effective_dof(fixed_parts, comp, 6)) * sum(fixed_parts.values())
         try:
             L = np.linalg.cholesky(fixed + 1e-18 * np.eye(6) * max(float(np.trace(fixed)), 1e-300))
@@ -864,10 +953,10 @@ def _statistics(prob: Problem, sol, sensors, observations, holds, options: Mocap
                 offsets: Mapping[str, bool]):
     """Per-sensor noise components, covariances (and clock-offset std) at the solution, and a
     function giving the joint covariance of a list of sensors."""
-    r, J, layout, row_obs, row_sensor = _rows(prob, sol)
+    r, J, layout, row_obs, row_sensor, row_known = _rows(prob, sol)
     stats: dict[str, _SensorStats] = {}
     for s in sensors:
-        lin = _linearise(r, J, layout, row_obs, row_sensor, s.name, sol.poses[s.name], observations,
+        lin = _linearise(r, J, layout, row_obs, row_sensor, row_known, s.name, sol.poses[s.name], observations,
                          offsets.get(s.name, False))
         st = _sensor_statistics(lin, observations, holds, options)
         st.naive = sol.pose_covariance(s.name)
@@ -880,7 +969,7 @@ def _statistics(prob: Problem, sol, sensors, observations, holds, options: Mocap
         # each sensor's block replaced by its own and cross terms scaled alike
         w = np.ones(len(r))
         for s in sensors:
-            w[row_sensor == s.name] = 1.0 / np.sqrt(stats[s.name].s2)
+            w[(row_sensor == s.name) & ~row_known] = 1.0 / np.sqrt(stats[s.name].s2)
         Jw = J * w[:, None]
         C = np.linalg.pinv(Jw.T @ Jw, rcond=1e-12)
         D = np.ones(C.shape[0])
@@ -923,12 +1012,13 @@ def _offset_steps(prob, sol, sensors, observations, offsets, options: MocapOptio
     """One Gauss-Newton step of every moving sensor's clock offset jointly with its pose (the
     pose is then solved again with the offset applied): least squares with the residuals
     weighted by their scatter and the offset's prior ``N(0, time_offset_sigma_s^2)``."""
-    r, J, layout, row_obs, row_sensor = _rows(prob, sol)
+    r, J, layout, row_obs, row_sensor, row_known = _rows(prob, sol)
     out = {}
     for s in sensors:
         if s.name not in offsets:
             continue
-        lin = _linearise(r, J, layout, row_obs, row_sensor, s.name, sol.poses[s.name], observations, True)
+        lin = _linearise(r, J, layout, row_obs, row_sensor, row_known, s.name, sol.poses[s.name], observations,
+                         True)
         if lin.j_offset is None:
             out[s.name] = 0.0
             continue
@@ -994,7 +1084,7 @@ def _matches(prob: Problem, sol, sensors, observations, whitened) -> dict[str, d
     ``whitened[sensor]``: the sigma ``sol``'s residuals were whitened by, over the configured."""
     out: dict[str, dict[str, list[int]]] = {s.name: {} for s in sensors}
     for b, raw in zip(prob.observations, sol.residuals):
-        if not b.label.startswith(ROBOT):
+        if not _noisy(b):
             continue
         lim = 3.0 * np.sqrt(b.dim)
         e = np.linalg.norm(raw, axis=1) * whitened.get(b.sensor, 1.0)
@@ -1093,12 +1183,15 @@ def calibrate_mocap_fit(
         o.keypoints_target is None and kinds[o.sensor] == SensorKind.LIDAR for o in observations)
     phase, phase_it, it = "centroid", 0, 0
     sol = None
+    edges = None  # the ring ends' selection, made when the surface phase starts
     with single_threaded():
         block_poses: dict[str, np.ndarray] = {}
         while True:
             it += 1
             phase_it += 1
-            prob = _build(sensors, observations, poses, surfaces, options, boards, block_poses, phase)
+            if phase == "surface" and edges is None:
+                edges = _edge_selection(sensors, observations, poses, surfaces, options, block_poses)
+            prob = _build(sensors, observations, poses, surfaces, options, boards, block_poses, phase, edges)
             sol = solve(prob, loss=options.loss, loss_scale=options.loss_scale)
             block_poses = {k: v for k, v in sol.poses.items() if k.startswith("target:")}
             if not sol.converged:
@@ -1136,7 +1229,7 @@ def calibrate_mocap_fit(
                 for n, d in steps.items():
                     offsets[n] += d
                 shifted = [shift_observation(o, offsets.get(o.sensor, 0.0)) for o in observations]
-                prob = _build(sensors, shifted, poses, surfaces, options, boards, block_poses, phase)
+                prob = _build(sensors, shifted, poses, surfaces, options, boards, block_poses, phase, edges)
                 # the sensors (and estimated target poses) start where they were; held target
                 # poses are the shifted observations'
                 start = {k: v for k, v in sol.poses.items()
@@ -1160,7 +1253,7 @@ def calibrate_mocap_fit(
             # every sensor weighted by its own noise (and the robust loss's scale with it)
             factor = {n: float(np.sqrt(st.s2)) for n, st in stats.items()}
             prob = prob.with_observations(tuple(
-                b.with_sigma(b.sigma * factor[b.sensor]) if b.label.startswith(ROBOT) else b
+                b.with_sigma(b.sigma * factor[b.sensor]) if _noisy(b) else b
                 for b in prob.observations))
             sol2 = solve(prob, loss=options.loss, loss_scale=options.loss_scale, start=sol.poses)
             if sol2.converged:
@@ -1173,7 +1266,7 @@ def calibrate_mocap_fit(
                 st.noise["view"] *= factor[n]
                 st.noise["view_affine"] *= factor[n]
             prob = prob.with_observations(tuple(
-                b.with_sigma(b.sigma / factor[b.sensor]) if b.label.startswith(ROBOT) else b
+                b.with_sigma(b.sigma / factor[b.sensor]) if _noisy(b) else b
                 for b in prob.observations))
     for s in sensors:
         if s.kind == SensorKind.CAMERA:

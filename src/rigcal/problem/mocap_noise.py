@@ -107,8 +107,12 @@ class _Reml:
     Woodbury, so every evaluation costs O(K^3) for K random effects, whatever the rows."""
 
     def __init__(self, r: np.ndarray, X: np.ndarray, loadings: Mapping[str, np.ndarray],
-                 groups: np.ndarray | None = None):
+                 groups: np.ndarray | None = None, known: np.ndarray | None = None):
         self.n = len(r)
+        known = np.zeros(self.n, dtype=bool) if known is None else np.asarray(known, dtype=bool)
+        if groups is not None and np.any(known & (np.asarray(groups) >= 0)):
+            raise ValueError("rows of known variance cannot be in a view group")
+        self.n_known = int(known.sum())
         Q = _basis(X)
         self.p = Q.shape[1]
         self.names = [c for c in COMPONENTS if c in loadings and loadings[c].shape[1] > 0]
@@ -124,7 +128,9 @@ class _Reml:
         self.K = U.shape[1]
         # every inner product needed: of Y = [U Q r], and of its sums over each group
         Y = np.column_stack([U, Q, r])
-        self.YY = Y.T @ Y
+        # rows of known (unit) variance - a ring end's, not the sensor's noise - apart
+        self.YY = Y[~known].T @ Y[~known]
+        self.YYk = Y[known].T @ Y[known]
         self.units = [max(float(np.sum(u * u)) / self.n, 1e-300) for u in Us[:len(self.sizes)]]
         self.by_size: dict[int, np.ndarray] = {}
         self.n_grouped = 0
@@ -159,13 +165,15 @@ class _Reml:
             sizes = self.sizes
         # Y' B^-1 Y, and log |B|
         YBY = self.YY.copy()
-        logdetB = (self.n - self.n_grouped) * np.log(s2)
+        logdetB = (self.n - self.n_grouped - self.n_known) * np.log(s2)
         for size, W in self.by_size.items():
             YBY -= view / (s2 + size * view) * W
         if self.by_size:
             c = self.group_counts
             logdetB += float(np.sum((c - 1) * np.log(s2) + np.log(s2 + c * view)))
         YBY /= s2
+        if self.n_known:
+            YBY += self.YYk
         G, UQ, Ur = YBY[:K, :K], YBY[:K, K:K + p], YBY[:K, -1]
         QQ, Qr, rr = YBY[K:K + p, K:K + p], YBY[K:K + p, -1], float(YBY[-1, -1])
         g = np.sqrt(np.repeat(th, sizes)) if K else np.zeros(0)
@@ -222,20 +230,22 @@ class _Reml:
 
 
 def fit_components(r: np.ndarray, X: np.ndarray, loadings: Mapping[str, np.ndarray],
-                   floors: Mapping[str, float] | None = None, groups: np.ndarray | None = None
-                   ) -> Components:
+                   floors: Mapping[str, float] | None = None, groups: np.ndarray | None = None,
+                   known: np.ndarray | None = None) -> Components:
     """REML estimates of the variance components of one sensor's whitened residuals ``r``
     (n,) with fixed effects ``X`` (n, p) and random-effect loadings ``loadings[c]`` (n, k_c)
     for ``c`` in :data:`COMPONENTS` (missing or empty: not in the model), and ``groups`` (n,):
     each row's group for the ``"view"`` component (a random offset per group shared by its
     rows: one keypoint coordinate in every frame of one hold; -1: none). ``floors[c]``: the
     least value a component may take (a known lower bound: the MCS's own scatter); the
-    estimate is raised to it and its dof set to ``inf`` (a floor is not an estimate)."""
+    estimate is raised to it and its dof set to ``inf`` (a floor is not an estimate).
+    ``known`` (n,) bool: rows whose own variance is known (1, whitened: a lidar ring's end,
+    whose std is the scan's step) - they share the random effects but not ``s2``."""
     r = np.asarray(r, dtype=float)
     n = len(r)
     floors = dict(floors or {})
-    f = _Reml(r, X, loadings, groups)
-    dof_resid = max(n - f.p, 1)
+    f = _Reml(r, X, loadings, groups, known)
+    dof_resid = max(n - f.n_known - f.p, 1)
     v0 = max(float(f.YY[-1, -1]) / dof_resid, 1e-300)
     m = len(f.names)
     if groups is None:
@@ -403,39 +413,47 @@ def widening(dof: float, dim: int = 6) -> float:
 
 
 def sandwich(X: np.ndarray, loadings: Mapping[str, np.ndarray], comp: Components,
-             prior: np.ndarray | None = None, groups: np.ndarray | None = None) -> dict[str, np.ndarray]:
+             prior: np.ndarray | None = None, groups: np.ndarray | None = None,
+             known: np.ndarray | None = None) -> dict[str, np.ndarray]:
     """The (p, p) covariance of the least-squares estimate of the fixed effects ``X`` (n, p)
     when the residuals have the covariance of ``comp``, by source: ``"point"``, each random
     component of ``loadings``, and ``"prior"``; their sum is the covariance. ``prior`` (p,):
     per fixed effect the inverse std of a zero-mean prior (0: none) - a pseudo-observation the
-    estimate also fits (the truth drawn from it)."""
+    estimate also fits (the truth drawn from it). ``known`` (n,) bool: rows of known unit
+    variance (see :func:`fit_components`), their part ``"known"``."""
     s2 = comp.s2
     p = X.shape[1]
     P = np.diag(np.square(prior)) if prior is not None else np.zeros((p, p))
-    XX = X.T @ X
-    A = XX / s2 + P
+    known = np.zeros(len(X), dtype=bool) if known is None else np.asarray(known, dtype=bool)
+    # B^-1 X: every row weighted by its own variance (s2, or 1 where it is known)
+    Xw = np.where(known[:, None], X, X / s2)
+    XXp = X[~known].T @ X[~known] / s2
+    XXk = X[known].T @ X[known]
+    A = XXp + XXk + P
     Ai = np.linalg.pinv(A, rcond=1e-13)
-    parts = {"point": Ai @ (XX / s2) @ Ai}
+    parts = {"point": Ai @ XXp @ Ai}
+    if known.any():
+        parts["known"] = Ai @ XXk @ Ai
     for c, U in loadings.items():
         if c == VIEW_POSE:
             continue
         v = comp.get(c)
         if U.shape[1] == 0 or v <= 0:
             continue
-        UX = U.T @ X
-        parts[c] = Ai @ ((v / s2 ** 2) * (UX.T @ UX)) @ Ai
+        UX = U.T @ Xw
+        parts[c] = Ai @ (v * (UX.T @ UX)) @ Ai
     v = comp.get("view")
     if groups is not None and v > 0 and np.any(groups >= 0):
         g = np.asarray(groups)
         ids, inverse = np.unique(g[g >= 0], return_inverse=True)
         S = np.zeros((len(ids), p))
-        np.add.at(S, inverse, X[g >= 0])
+        np.add.at(S, inverse, Xw[g >= 0])
         meat = S.T @ S
         vp = loadings.get(VIEW_POSE)
         if vp is not None and vp.shape[1]:
-            VX = vp.T @ X
+            VX = vp.T @ Xw
             meat = meat - VX.T @ VX
-        parts["view"] = Ai @ ((v / s2 ** 2) * meat) @ Ai
+        parts["view"] = Ai @ (v * meat) @ Ai
     if prior is not None:
         parts["prior"] = Ai @ P @ Ai
     return {k: 0.5 * (v + v.T) for k, v in parts.items()}

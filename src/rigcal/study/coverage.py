@@ -17,9 +17,10 @@ casting or rendering, so a trial takes a fraction of a second) under one of the
   (about a Vicon's), independent at every frame - over small sensor noise (lidar 2 mm,
   camera 0.3 px); the calibration gets each capture's MCS covariance as the pipeline does
   (the streams' own scatter);
-* ``lidar_range``: the lidar measures 200 points on the plate (every point tied to the
-  target's surface, the pipeline's default) with a VLP-16-like range noise of 10-20 mm along
-  each ray (told 10 mm); the camera 0.3-3 px;
+* ``lidar_range``: the lidar measures every point on the plate (the pipeline's default) - one
+  revolution of the VLP-16 ray-cast at each capture, a random firing phase per revolution -
+  with a range noise of 10-20 mm along each ray (told 10 mm), and where each of its rings
+  leaves the plate (:func:`rigcal.extract.lidar.ring_edge_rays`); the camera 0.3-3 px;
 * ``timing_jitter``: the robot drives at 2-8 cm/s in a random direction during half of the
   holds, and every frame's stamp is off its capture time by 5 ms (std); sensor noise as in
   ``mcs_capture``;
@@ -72,6 +73,8 @@ _JITTER_S = 0.005
 _OFFSET_S = (0.020, 0.100)
 _SPEED_MPS = (0.02, 0.08)
 _FRAME_S = 0.25
+#: the paper rig's VLP-16: 2 deg between its rings
+_VERTICAL_STEP_RAD = math.radians(2.0)
 
 
 def _nees(T_est: np.ndarray, T_true: np.ndarray, cov: np.ndarray) -> tuple[float, float]:
@@ -115,7 +118,8 @@ def _trial(rng: np.random.Generator, holds: int, frames: int, model: str):
     from rigcal.problem import mocap as _m
     from rigcal.problem.mocap import MocapSensor, TargetObservation
     calibrate_mocap_fit = _m.calibrate_mocap_fit
-    from rigcal.sim.mocap import CAMERA, LIDAR, Placement, paper_rig, sample_target_pose
+    from rigcal.extract.lidar import ring_edge_rays
+    from rigcal.sim.mocap import CAMERA, LIDAR, SURFACE_TARGET, Placement, cast_lidar, paper_rig, sample_target_pose
     from rigcal.targets.surface import TargetSurface
     from rigcal.targets.templates import diamond_target
 
@@ -172,18 +176,21 @@ def _trial(rng: np.random.Generator, holds: int, frames: int, model: str):
                     T_b = invert(T_mr(stamp + h_s)) @ T_mt
                     vel = se3_log(invert(T_a) @ T_b) / h_s
                 pose_cov = _capture_cov(T_rt_mcs) if fl["capture"] else None
+                edge_rays = None
                 if kind == LIDAR and kp is None:
-                    pts = target.template[rng.choice(len(target.template), 200, replace=False)]
-                    P = pts @ T_st[:3, :3].T + T_st[:3, 3]
-                    u = P / np.linalg.norm(P, axis=1, keepdims=True)
-                    meas = P + u * rng.normal(0, sigma_l, (len(P), 1))
+                    # one revolution of the VLP-16 at the capture, every return from the plate
+                    # with range noise along its ray, and where each ring leaves the plate
+                    cloud = cast_lidar(rig.lidar, T_mr(t_cap) @ T_rs, target, T_mt, (), rng,
+                                       range_sigma_m=sigma_l)
+                    meas = cloud.points_xyz[cloud.fields["surface"] == SURFACE_TARGET]
+                    edge_rays = ring_edge_rays(meas, _VERTICAL_STEP_RAD, math.radians(rig.lidar.azimuth_step_deg))
                 elif kind == LIDAR:
                     meas = kp @ T_st[:3, :3].T + T_st[:3, 3] + bias + rng.normal(0, sigma_l, (4, 3))
                 else:
                     uv, _ = rig.camera.project(kp @ T_st[:3, :3].T + T_st[:3, 3])
                     meas = uv + rng.normal(0, sigma_c, uv.shape)
                 obs.append(TargetObservation(name, "diamond", int(round(stamp * 1e9)), T_rt_mcs, meas, kp,
-                                             hold=str(h), velocity=vel, pose_cov=pose_cov))
+                                             hold=str(h), velocity=vel, pose_cov=pose_cov, edge_rays=edge_rays))
             t0 += frames * _FRAME_S + 2.0
     sensors = [MocapSensor("lidar", SensorKind.LIDAR, sigma=0.01),
                MocapSensor("camera", SensorKind.CAMERA, camera=rig.camera, sigma=1.0)]
@@ -221,7 +228,8 @@ def mocap_coverage(trials: int = 50, seed: int = 0, *, holds: int = 4, frames_pe
     ``error_model`` (one of :data:`ERROR_MODELS`).
 
     Returns a dict: ``trials``, ``seed``, ``holds``, ``frames_per_hold``, ``error_model``,
-    ``checks`` (sensor estimates checked), ``failed`` (trials whose calibration raised),
+    ``checks`` (sensor estimates checked), ``failed`` (trials whose calibration raised) and
+    ``failures`` (each one's trial index and error),
     ``flagged`` (estimates whose clock offset mattered but was not determined: left out),
     ``inside_6dof`` and ``inside_3dof_translation`` (the reported covariance), ``nees_median``
     (median of ``e' C^-1 e / 6``), ``naive_inside_6dof`` and ``naive_inside_3dof_translation``
@@ -241,13 +249,14 @@ def mocap_coverage(trials: int = 50, seed: int = 0, *, holds: int = 4, frames_pe
         raise InputError(f"mocap_coverage: error_model must be one of {', '.join(ERROR_MODELS)}, got {error_model!r}")
     t0 = time.perf_counter()
     per: dict[str, list] = {"lidar": [], "camera": []}
-    failed = 0
+    failed, failures = 0, []
     for k in range(int(trials)):
         rng = np.random.default_rng([int(seed), k])
         try:
             res = _trial(rng, int(holds), int(frames_per_hold), error_model)
-        except RigcalError:
+        except RigcalError as exc:
             failed += 1
+            failures.append((k, str(exc)))
             continue
         for name, v in res.items():
             per[name].append(v)
@@ -280,6 +289,7 @@ def mocap_coverage(trials: int = 50, seed: int = 0, *, holds: int = 4, frames_pe
         "frames_per_hold": int(frames_per_hold),
         "error_model": error_model,
         "failed": failed,
+        "failures": failures,
         **{k: every[k] for k in ("checks", "flagged", "inside_6dof", "inside_3dof_translation", "nees_median",
                                  "naive_inside_6dof", "naive_inside_3dof_translation")},
         "per_sensor": {name: summary(rows) for name, rows in per.items()},

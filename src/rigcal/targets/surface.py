@@ -11,6 +11,11 @@ point-to-plane residual ``n . (y - p)``:
 * any other target (a template cloud, e.g. a PCD from the original tool): the nearest
   template point and the normal of a plane fitted to its neighbours.
 
+A flat analytic target (the diamond plate, the circle board: the plane z = 0 of the target
+frame) is ``planar`` and has a ``boundary``: the signed in-plane distance of points to its
+outline (positive inside; the circle board's holes are not part of it) and its gradient -
+where a scanning lidar's rings leave the plate (:mod:`rigcal.problem.residuals`).
+
 Where the closest point lies inside a face the normal is the face's; where the point is
 beyond an edge or rim (the closest point is on the boundary) the normal is the direction from
 the closest point to the point, so the residual is the distance to the boundary. Pure
@@ -117,6 +122,51 @@ def _circle_board(dims, p):
     return closest, _boundary_normals(p, closest, face, clamped)
 
 
+def _diamond_boundary(dims, xy):
+    sq = float(dims["square_m"])
+    c = np.array([(int(dims["cols"]) + 1) * sq / 2.0, (int(dims["rows"]) + 1) * sq / 2.0])
+    half = float(dims["side_m"]) / 2.0
+    s = 1.0 / math.sqrt(2.0)
+    dx, dy = xy[:, 0] - c[0], xy[:, 1] - c[1]
+    u, v = (dx + dy) * s, (dy - dx) * s
+    use_u = np.abs(u) >= np.abs(v)
+    f = half - np.where(use_u, np.abs(u), np.abs(v))
+    gu = -np.sign(u)[:, None] * np.array([s, s])
+    gv = -np.sign(v)[:, None] * np.array([-s, s])
+    return f, np.where(use_u[:, None], gu, gv)
+
+
+def _diamond_corners(dims):
+    sq = float(dims["square_m"])
+    c = np.array([(int(dims["cols"]) + 1) * sq / 2.0, (int(dims["rows"]) + 1) * sq / 2.0])
+    r = float(dims["side_m"]) / math.sqrt(2.0)
+    return c + r * np.array([[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0]])
+
+
+def _circle_board_corners(dims):
+    board = board_from_dims(dims)
+    cy = plate_centre_y(board, float(dims.get("holes_above_plate_centre_m", -0.3)))
+    w, hgt = board.width_m / 2, board.height_m / 2
+    return np.array([[w, cy + hgt], [-w, cy + hgt], [-w, cy - hgt], [w, cy - hgt]])
+
+
+def _circle_board_boundary(dims, xy):
+    board = board_from_dims(dims)
+    cy = plate_centre_y(board, float(dims.get("holes_above_plate_centre_m", -0.3)))
+    w, hgt = board.width_m / 2, board.height_m / 2
+    fx = w - np.abs(xy[:, 0])
+    fy = hgt - np.abs(xy[:, 1] - cy)
+    use_x = fx <= fy
+    gx = np.column_stack([-np.sign(xy[:, 0]), np.zeros(len(xy))])
+    gy = np.column_stack([np.zeros(len(xy)), -np.sign(xy[:, 1] - cy)])
+    return np.where(use_x, fx, fy), np.where(use_x[:, None], gx, gy)
+
+
+_BOUNDARY = {
+    TargetKind.CHECKERBOARD_DIAMOND: (_diamond_boundary, _diamond_corners),
+    TargetKind.CIRCLE_BOARD: (_circle_board_boundary, _circle_board_corners),
+}
+
 _ANALYTIC = {
     TargetKind.CHECKERBOARD_DIAMOND: _diamond,
     TargetKind.CYLINDER: _cylinder,
@@ -144,7 +194,7 @@ class TargetSurface:
     template cloud otherwise; ``TargetSurface.of_template(points)``: from a cloud alone.
     ``template`` (K, 3): the target's template points (for centroid-aligned matching)."""
 
-    __slots__ = ("name", "template", "_dims", "_analytic", "_tree", "_normals")
+    __slots__ = ("name", "template", "_dims", "_analytic", "_boundary", "_tree", "_normals")
 
     def __init__(self, name: str, template: np.ndarray, kind: TargetKind = TargetKind.CUSTOM,
                  dims=None):
@@ -161,6 +211,7 @@ class TargetSurface:
         object.__setattr__(self, "template", t)
         object.__setattr__(self, "_dims", dims)
         object.__setattr__(self, "_analytic", analytic)
+        object.__setattr__(self, "_boundary", _BOUNDARY.get(kind) if analytic is not None else None)
         tree = normals = None
         if analytic is None:
             tree = cKDTree(t)
@@ -183,6 +234,31 @@ class TargetSurface:
     @property
     def analytic(self) -> bool:
         return self._analytic is not None
+
+    @property
+    def planar(self) -> bool:
+        """A flat plate in the target frame's plane z = 0 with a known outline (the diamond,
+        the circle board)."""
+        return self._boundary is not None
+
+    def boundary(self, xy: Any) -> tuple[np.ndarray, np.ndarray]:
+        """(N,) signed distance [m] of in-plane points (N, 2) (the plane z = 0 of the target
+        frame) to the plate's outline, positive inside, and (N, 2) its gradient. Only for a
+        ``planar`` surface (ValueError otherwise)."""
+        if self._boundary is None:
+            raise ValueError(f"target '{self.name}': not a flat plate with a known outline")
+        p = np.asarray(xy, dtype=float).reshape(-1, 2)
+        return self._boundary[0](self._dims, p)
+
+    def corner_distance(self, xy: Any) -> np.ndarray:
+        """(N,) in-plane distance [m] of points (N, 2) to the nearest corner of the plate's
+        outline (where :meth:`boundary` turns from one side to the next). Only for a
+        ``planar`` surface."""
+        if self._boundary is None:
+            raise ValueError(f"target '{self.name}': not a flat plate with a known outline")
+        p = np.asarray(xy, dtype=float).reshape(-1, 2)
+        corners = self._boundary[1](self._dims)
+        return np.min(np.linalg.norm(p[:, None, :] - corners[None], axis=2), axis=1)
 
     def closest(self, points_target: Any) -> tuple[np.ndarray, np.ndarray]:
         """(N, 3) closest surface points and (N, 3) unit normals for points (N, 3) in the

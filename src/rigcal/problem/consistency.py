@@ -459,6 +459,8 @@ def mocap_error_text(f) -> str:
     if c.get("capture_m", 0.0) > 0 or c.get("capture_rad", 0.0) > 0:
         parts.append(f"{1000 * c.get('capture_m', 0.0):.2g} mm / {1000 * c.get('capture_rad', 0.0):.2g} mrad "
                      "per capture")
+    if c.get("ring_end", 0.0) > 0:
+        parts.append(f"{c['ring_end']:.2g} x a ring end's std shared by the ends on one side per revolution")
     if c.get("jitter_s", 0.0) > 0:
         parts.append(f"{1000 * c['jitter_s']:.2g} ms stamp jitter")
     if c.get("hold_m", 0.0) > 0 or c.get("hold_rad", 0.0) > 0:

@@ -340,22 +340,25 @@ EDGE_CORNER_STEPS = 3.0
 def _edge_items(o: TargetObservation, T_R_S: np.ndarray, T_R_T: np.ndarray, surface: TargetSurface):
     """The ring ends of a lidar observation usable under the current poses, and each one's
     std: the step between its two rays' hits across the plate's outline over sqrt(12) (where
-    the ring crosses the edge is uniform over the step). (rays (k, 6), sigma (k, 1))."""
+    the ring crosses the edge is uniform over the step), and the side of the outline each one
+    ends on (an integer label: its inward normal's direction in degrees). (rays (k, 6),
+    sigma (k, 1), side (k,))."""
     rays = o.edge_rays
     if rays is None or len(rays) == 0:
-        return np.zeros((0, 6)), np.zeros((0, 1))
+        return np.zeros((0, 6)), np.zeros((0, 1)), np.zeros(0, dtype=int)
     k = len(rays)
     TA = np.broadcast_to(T_R_T, (2 * k, 4, 4))
     TB = np.broadcast_to(T_R_S, (2 * k, 4, 4))
     h, srange, *_ = ray_plane_hits(TA, TB, np.concatenate([rays[:, :3], rays[:, 3:]]))
-    f, _ = surface.boundary(h[:, :2])
+    f, g = surface.boundary(h[:, :2])
     cross = f[:k] - f[k:]
     length = np.linalg.norm(h[:k] - h[k:], axis=1)
     # near a corner of the outline the nearest side changes between (or under) the two rays
     corner = np.minimum(surface.corner_distance(h[:k, :2]), surface.corner_distance(h[k:, :2]))
     ok = (srange[:k] > 0) & (srange[k:] > 0) & (length > 0) & (cross >= EDGE_MIN_CROSSING * length) \
         & (corner > EDGE_CORNER_STEPS * length)
-    return rays[ok], (cross[ok] / np.sqrt(12.0))[:, None]
+    side = np.round(np.degrees(np.arctan2(g[:k, 1], g[:k, 0]))).astype(int)
+    return rays[ok], (cross[ok] / np.sqrt(12.0))[:, None], side[ok]
 
 
 def _edge_selection(sensors, observations, poses, surfaces, options, block_poses=None) -> dict[int, tuple]:
@@ -409,10 +412,10 @@ def _build(sensors, observations, poses, surfaces, options, boards=None, block_p
             # a scanning lidar's points on a plate: each point's range along its ray, the
             # plate's outline where the rings leave it
             if edges is not None and i in edges:
-                rays, sig = edges[i]
+                rays, sig, _ = edges[i]
             else:
                 T_R_T = block_poses.get(block, o.T_robot_target) if block_poses and free else o.T_robot_target
-                rays, sig = _edge_items(o, poses[o.sensor], T_R_T, surfaces[o.target])
+                rays, sig, _ = _edge_items(o, poses[o.sensor], T_R_T, surfaces[o.target])
             _add(items, (o.sensor, MODEL_RAY_EDGE, o.target, "edge"), block, i, np.zeros((len(rays), 3)),
                  rays, sigma=sig)
             pts, meas, model = np.zeros((len(o.measured), 3)), o.measured, MODEL_RANGE
@@ -755,7 +758,32 @@ def _linearise(r, J, layout, row_obs, row_sensor, row_known, name: str, T_R_S: n
     return _Linear(rs, Js, cols, frames, j if moved else None, known if known.any() else None)
 
 
-def _loadings(lin: _Linear, observations: Sequence[TargetObservation], holds: Sequence[str]):
+def _edge_loading(lin: _Linear, edges: Mapping[int, tuple] | None) -> np.ndarray:
+    """The ``edge`` loading (n, one column per frame and side of the plate's outline) of a
+    lidar's ring ends: the ends of one frame on one side share an error. The firing azimuths of
+    a revolution are one phase for every ring, and where the rings cross one straight edge
+    differs from ring to ring by nearly whole steps (for a 45 deg side seen face on, the 2 deg
+    between rings is 10 steps of 0.2 deg): where each ring's end falls within its step is then
+    the same for all of them. Empty without ring ends."""
+    if lin.known is None or not edges:
+        return np.zeros((len(lin.r), 0))
+    cols = []
+    for i, m, _ in lin.frames:
+        rows = np.flatnonzero(m & lin.known)
+        if i not in edges or len(rows) == 0:
+            continue
+        side = edges[i][2]
+        if len(side) != len(rows):
+            continue
+        for sd in np.unique(side):
+            c = np.zeros(len(lin.r))
+            c[rows[side == sd]] = 1.0
+            cols.append(c)
+    return np.column_stack(cols) if cols else np.zeros((len(lin.r), 0))
+
+
+def _loadings(lin: _Linear, observations: Sequence[TargetObservation], holds: Sequence[str],
+              edges: Mapping[int, tuple] | None = None):
     """The random-effect loadings of one sensor (see :mod:`rigcal.problem.mocap_noise`) and
     whether the per-capture shape came from the MCS streams (``pose_cov``)."""
     n = len(lin.r)
@@ -785,6 +813,9 @@ def _loadings(lin: _Linear, observations: Sequence[TargetObservation], holds: Se
     affine = _view_affine(lin, observations, holds, hold_ids)
     if affine.shape[1]:
         loads["view_affine"] = affine
+    edge = _edge_loading(lin, edges)
+    if edge.shape[1]:
+        loads["edge"] = edge
     return loads, streams
 
 
@@ -896,10 +927,10 @@ class _SensorStats:
     determined: bool
 
 
-def _sensor_statistics(lin: _Linear, observations, holds, options: MocapOptions) -> _SensorStats:
+def _sensor_statistics(lin: _Linear, observations, holds, options: MocapOptions, edges=None) -> _SensorStats:
     from rigcal.problem.mocap_noise import effective_dof, fit_components, sandwich, widening
 
-    loads, streams = _loadings(lin, observations, holds)
+    loads, streams = _loadings(lin, observations, holds, edges)
     X = lin.Js if lin.j_offset is None else np.column_stack([lin.Js, lin.j_offset])
     floor_r, floor_t = options.hold_sigma_floor
     floors = {"hold": floor_t ** 2, "hold_rot": floor_r ** 2}
@@ -943,6 +974,7 @@ def _sensor_statistics(lin: _Linear, observations, holds, options: MocapOptions)
     hold_r = float(np.sqrt(comp.get("hold_rot")))
     noise = {"capture_m": cap_t, "capture_rad": cap_r, "jitter_s": float(np.sqrt(comp.get("jitter"))),
              "hold_m": hold_t, "hold_rad": hold_r,
+             "ring_end": float(np.sqrt(comp.get("edge"))),
              "view": float(np.sqrt(comp.get("view"))),
              "view_affine": float(np.sqrt(comp.get("view_affine")))}
     return _SensorStats(lin.cols, cov, np.zeros((6, 6)), comp.s2, comp, noise,
@@ -950,7 +982,7 @@ def _sensor_statistics(lin: _Linear, observations, holds, options: MocapOptions)
 
 
 def _statistics(prob: Problem, sol, sensors, observations, holds, options: MocapOptions,
-                offsets: Mapping[str, bool]):
+                offsets: Mapping[str, bool], edges=None):
     """Per-sensor noise components, covariances (and clock-offset std) at the solution, and a
     function giving the joint covariance of a list of sensors."""
     r, J, layout, row_obs, row_sensor, row_known = _rows(prob, sol)
@@ -958,7 +990,7 @@ def _statistics(prob: Problem, sol, sensors, observations, holds, options: Mocap
     for s in sensors:
         lin = _linearise(r, J, layout, row_obs, row_sensor, row_known, s.name, sol.poses[s.name], observations,
                          offsets.get(s.name, False))
-        st = _sensor_statistics(lin, observations, holds, options)
+        st = _sensor_statistics(lin, observations, holds, options, edges)
         st.naive = sol.pose_covariance(s.name)
         stats[s.name] = st
     coupled = any(p.free != (False,) * 6 for p in prob.poses if p.name.startswith("target:")) \
@@ -1248,7 +1280,7 @@ def calibrate_mocap_fit(
     # whitens by the estimated noise): _matches judges against the configured sigma
     whitened = {s.name: 1.0 for s in sensors}
     with single_threaded():
-        stats, joint = _statistics(prob, sol, sensors, shifted, holds, options, moving)
+        stats, joint = _statistics(prob, sol, sensors, shifted, holds, options, moving, edges)
         if coupled or any(abs(np.log(st.s2)) > np.log(4.0) for st in stats.values()):
             # every sensor weighted by its own noise (and the robust loss's scale with it)
             factor = {n: float(np.sqrt(st.s2)) for n, st in stats.items()}
@@ -1260,7 +1292,7 @@ def calibrate_mocap_fit(
                 sol = sol2
                 poses = {s.name: sol.poses[s.name] for s in sensors}
                 whitened = factor
-            stats, joint = _statistics(prob, sol, sensors, shifted, holds, options, moving)
+            stats, joint = _statistics(prob, sol, sensors, shifted, holds, options, moving, edges)
             for n, st in stats.items():
                 st.s2 *= factor[n] ** 2
                 st.noise["view"] *= factor[n]
@@ -1306,7 +1338,8 @@ def calibrate_mocap_fit(
             holds=len({h for h, o in zip(holds, shifted) if o.sensor == s.name}),
             observations=len(own), residuals=int(e.size),
             matches=matches.get(s.name, {}), covariance_naive=naive, start=starts[s.name],
-            components=MappingProxyType({**{k: v for k, v in st.noise.items() if k not in ("view", "view_affine")},
+            components=MappingProxyType({**{k: v for k, v in st.noise.items() if k not in ("view", "view_affine")
+                                            and (k != "ring_end" or "edge" in st.comp.values)},
                                          f"view_{'px' if s.kind == SensorKind.CAMERA else 'm'}":
                                              st.noise["view"] * float(s.sigma),
                                          **({"view_affine_px": st.noise["view_affine"] * float(s.sigma)}

@@ -16,6 +16,9 @@ residuals ``r`` (n,), whitened by its configured sigma, are modelled as
 * ``c_g ~ N(0, hold I6)`` per **hold** g (the target held still), through ``U_g = Jd_g L_g``,
   shared by every frame of the hold: the MCS's error of the still target and what the
   extractor makes of one view;
+* ``k_e ~ N(0, edge)`` per frame and side of a plate's outline, on a lidar's ring ends (rows
+  of known variance, see :func:`fit_components`): the ends of one revolution on one straight
+  side fall at nearly the same place within their steps;
 * ``d_g ~ N(0, view_affine I6)`` per hold of a camera's grid: an affine distortion of the
   grid's image, what a corner detector gets wrong in one view. For a small grid it spans
   nearly the same directions as the hold's pose error but in another shape (a target-pose
@@ -50,7 +53,7 @@ from scipy.stats import chi2, f as f_dist
 __all__ = ["COMPONENTS", "Components", "effective_dof", "fit_components", "sandwich", "widening"]
 
 #: the random effects besides the per-point noise, in the order of the parameters
-COMPONENTS = ("capture", "jitter", "hold_rot", "hold", "view_affine")
+COMPONENTS = ("capture", "jitter", "hold_rot", "hold", "view_affine", "edge")
 #: components that model the same errors in different shapes: the last of a family is kept
 #: when dropping the whole family costs more than LIKELIHOOD_RATIO
 FAMILIES = {"hold_rot": "hold", "hold": "hold", "view_affine": "hold"}

@@ -62,10 +62,15 @@ def _boundary_normals(p: np.ndarray, closest: np.ndarray, face_normal: np.ndarra
     return out
 
 
-def _diamond(dims, p):
+def _diamond_square(dims) -> tuple[np.ndarray, float]:
+    """The diamond plate's centre (2,) in its plane and its square's half side [m]."""
     sq = float(dims["square_m"])
     c = np.array([(int(dims["cols"]) + 1) * sq / 2.0, (int(dims["rows"]) + 1) * sq / 2.0])
-    half = float(dims["side_m"]) / 2.0
+    return c, float(dims["side_m"]) / 2.0
+
+
+def _diamond(dims, p):
+    c, half = _diamond_square(dims)
     s = 1.0 / math.sqrt(2.0)
     dx, dy = p[:, 0] - c[0], p[:, 1] - c[1]
     # in the square's own axes (turned 45 degrees) the closest point is a clamp
@@ -123,9 +128,7 @@ def _circle_board(dims, p):
 
 
 def _diamond_boundary(dims, xy):
-    sq = float(dims["square_m"])
-    c = np.array([(int(dims["cols"]) + 1) * sq / 2.0, (int(dims["rows"]) + 1) * sq / 2.0])
-    half = float(dims["side_m"]) / 2.0
+    c, half = _diamond_square(dims)
     s = 1.0 / math.sqrt(2.0)
     dx, dy = xy[:, 0] - c[0], xy[:, 1] - c[1]
     u, v = (dx + dy) * s, (dy - dx) * s
@@ -137,10 +140,8 @@ def _diamond_boundary(dims, xy):
 
 
 def _diamond_corners(dims):
-    sq = float(dims["square_m"])
-    c = np.array([(int(dims["cols"]) + 1) * sq / 2.0, (int(dims["rows"]) + 1) * sq / 2.0])
-    r = float(dims["side_m"]) / math.sqrt(2.0)
-    return c + r * np.array([[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0]])
+    c, half = _diamond_square(dims)
+    return c + math.sqrt(2.0) * half * np.array([[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0]])
 
 
 def _circle_board_corners(dims):

@@ -165,3 +165,34 @@ def test_two_shapes_of_one_per_hold_error_are_tested_as_a_family():
     assert alone.get("hold_rot") > 0  # the residuals need a per-hold error
     both = fit_components(r, X, {"hold_rot": iso, "hold": shaped})
     assert both.get("hold_rot") + both.get("hold") > 0
+
+
+@pytest.mark.parametrize("shared", [0.0, 0.5])
+def test_rows_of_known_variance_keep_it_and_share_only_the_random_effects(shared):
+    """A lidar's ring ends: rows whose own variance is known (1) next to points whose noise is
+    estimated (s2 = 4, told 1), with an error shared by the ends of one group (a frame's side of
+    the plate) of variance ``shared``: s2 comes from the points alone, the shared error is found
+    when it is there and dropped when it is not, and the sandwich weights the known rows by 1."""
+    rng = np.random.default_rng(11)
+    n_pts, groups_n, per = 3000, 60, 6
+    n = n_pts + groups_n * per
+    known = np.zeros(n, dtype=bool)
+    known[n_pts:] = True
+    X = rng.normal(size=(n, 6))
+    g = np.repeat(np.arange(groups_n), per)
+    U = np.zeros((n, groups_n))
+    U[n_pts + np.arange(groups_n * per), g] = 1.0
+    r = X @ rng.normal(size=6)
+    r[:n_pts] += rng.normal(0, 2.0, n_pts)
+    r[n_pts:] += rng.normal(0, 1.0, groups_n * per) + rng.normal(0, np.sqrt(shared), groups_n)[g]
+    comp = fit_components(r, X, {"edge": U}, known=known)
+    assert comp.s2 == pytest.approx(4.0, rel=0.1)
+    if shared:
+        assert comp.get("edge") == pytest.approx(shared, rel=0.6)
+    else:
+        assert comp.get("edge") < 0.1
+    parts = sandwich(X, {"edge": U}, comp, known=known)
+    # without the shared error: the covariance of weighted least squares with weights 1/s2 and 1
+    if not shared:
+        w = np.where(known, 1.0, 1.0 / comp.s2)
+        np.testing.assert_allclose(sum(parts.values()), np.linalg.inv(X.T @ (X * w[:, None])), rtol=1e-8)

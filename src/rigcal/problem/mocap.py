@@ -407,15 +407,10 @@ def _build(sensors, observations, poses, surfaces, options, boards=None, block_p
         model = MODEL_CAMERA if sensor.kind == SensorKind.CAMERA else MODEL_POINT
         if o.keypoints_target is not None:
             pts, meas = o.keypoints_target, o.measured
-        elif phase == "surface" and sensor.kind == SensorKind.LIDAR and o.edge_rays is not None \
-                and surfaces[o.target].planar:
-            # a scanning lidar's points on a plate: each point's range along its ray, the
-            # plate's outline where the rings leave it
-            if edges is not None and i in edges:
-                rays, sig, _ = edges[i]
-            else:
-                T_R_T = block_poses.get(block, o.T_robot_target) if block_poses and free else o.T_robot_target
-                rays, sig, _ = _edge_items(o, poses[o.sensor], T_R_T, surfaces[o.target])
+        elif phase == "surface" and edges and i in edges:
+            # a scanning lidar's points on a plate (:func:`_edge_selection` chose its ring ends):
+            # each point's range along its ray, the plate's outline where the rings leave it
+            rays, sig, _ = edges[i]
             _add(items, (o.sensor, MODEL_RAY_EDGE, o.target, "edge"), block, i, np.zeros((len(rays), 3)),
                  rays, sigma=sig)
             pts, meas, model = np.zeros((len(o.measured), 3)), o.measured, MODEL_RANGE

@@ -25,7 +25,7 @@ demo: $(STAMP)
 	$(BIN)/rigcal demo --out demo_out
 
 test: $(STAMP)
-	$(BIN)/python -m pytest -p no:cacheprovider -n $(JOBS) $(SLOW)
+	$(BIN)/python -m pytest -p no:cacheprovider -n $(JOBS) $(SLOW) --durations=40
 
 test-all: $(STAMP)
 	$(BIN)/python -m pytest -p no:cacheprovider -n $(JOBS)

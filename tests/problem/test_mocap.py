@@ -223,6 +223,11 @@ def test_bad_input_is_refused():
         calibrate_mocap(_sensors(), bad, _perturbed(rng))
     with pytest.raises(ConfigError, match="needs a camera model"):
         MocapSensor("c", SensorKind.CAMERA)
+    ok = TargetObservation("lidar1", "diamond", 0, np.eye(4), np.ones((5, 3)), edge_rays=[])
+    assert ok.edge_rays.shape == (0, 6) and not ok.edge_rays.flags.writeable
+    for rays in (np.zeros((2, 5)), np.zeros(6), [[np.nan] * 6]):
+        with pytest.raises(InputError, match=r"edge_rays must be finite numbers of shape \(E, 6\)"):
+            TargetObservation("lidar1", "diamond", 0, np.eye(4), np.ones((5, 3)), edge_rays=rays)
 
 
 # --------------------------------------------------------------------------- overlap and mixed

@@ -109,7 +109,8 @@ def _dense_reml(r, X, V):
     return np.linalg.slogdet(V)[1] + np.linalg.slogdet(A)[1] + float(r @ P @ r)
 
 
-def test_reml_is_the_dense_likelihood_where_v_is_a_covariance_and_refused_elsewhere():
+@pytest.mark.parametrize("with_hold", [True, False])
+def test_reml_is_the_dense_likelihood_where_v_is_a_covariance_and_refused_elsewhere(with_hold):
     """The view component's pose part enters with a negative sign, so V = s2 I + view (Z Z' -
     W W') + ... is a covariance only for some parameters. Where it is not, the Woodbury form
     gave finite, hugely negative values (-3e11 on a camera of the mocap demo) that the search
@@ -124,6 +125,8 @@ def test_reml_is_the_dense_likelihood_where_v_is_a_covariance_and_refused_elsewh
     W = np.zeros((n, 1))
     W[:2, 0] = 1.5  # more than the group's own loading: V indefinite for a large view
     r = rng.normal(size=n)
+    if not with_hold:  # the view's pose part the only low-rank effect
+        hold = np.zeros((n, 0))
     f = _Reml(r, X, {"hold": hold, "view_pose": W}, groups)
     Z = np.zeros((n, 12))
     Z[np.arange(n), groups] = 1.0
@@ -131,9 +134,11 @@ def test_reml_is_the_dense_likelihood_where_v_is_a_covariance_and_refused_elsewh
     for log_s2 in (-6.0, -2.0, 0.0):
         for log_hold in (-4.0, 0.0):
             for log_view in (-6.0, -1.0, 0.0, 2.0):
-                phi = np.array([log_s2, log_hold, log_view])
+                phi = np.array([log_s2, log_hold, log_view] if with_hold else [log_s2, log_view])
                 s2, th = f.theta(phi)
-                V = s2 * np.eye(n) + th[0] * hold @ hold.T + th[1] * (Z @ Z.T - W @ W.T)
+                V = s2 * np.eye(n) + th[-1] * (Z @ Z.T - W @ W.T)
+                if with_hold:
+                    V = V + th[0] * hold @ hold.T
                 if np.linalg.eigvalsh(V).min() > 0:
                     accepted += 1
                     assert f(phi) == pytest.approx(_dense_reml(r, X, V), rel=1e-8, abs=1e-6)

@@ -135,16 +135,18 @@ class TargetObservation:
             )
         if not np.all(np.isfinite(m)):
             raise InputError(f"{where}: measured has non-finite entries (NaN or inf)")
-        for key, shape in (("velocity", (6,)), ("pose_cov", (6, 6)), ("edge_rays", (-1, 6))):
+        for key, shape in (("velocity", (6,)), ("pose_cov", (6, 6)), ("edge_rays", None)):
             v = getattr(self, key)
             if v is None:
                 continue
             a = np.array(v, dtype=float)
-            if key == "edge_rays" and a.size == 0:
-                a = a.reshape(0, 6)
-            if a.ndim != len(shape) or any(k not in (-1, d) for k, d in zip(shape, a.shape)) \
-                    or not np.all(np.isfinite(a)):
-                want = "(E, 6)" if key == "edge_rays" else str(shape)
+            if shape is None:  # edge_rays: (E, 6), any E (none: empty)
+                a = a.reshape(0, 6) if a.size == 0 else a
+                fits = a.ndim == 2 and a.shape[1] == 6
+            else:
+                fits = a.shape == shape
+            if not fits or not np.all(np.isfinite(a)):
+                want = "(E, 6)" if shape is None else str(shape)
                 raise InputError(f"{where}: {key} must be finite numbers of shape {want}, got {a.shape}")
             a.setflags(write=False)
             object.__setattr__(self, key, a)
@@ -859,7 +861,8 @@ def _grid_coordinates(keypoints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _view_groups(lin: _Linear, observations: Sequence[TargetObservation], holds: Sequence[str]
                  ) -> tuple[np.ndarray, np.ndarray]:
     """The ``view`` component's rows: ``groups`` (n,), one keypoint coordinate (by its
-    target-frame position) in every frame of one hold (-1: rows without correspondences), and
+    target-frame position) in every frame of one hold (-1: rows without correspondences, or of a
+    coordinate seen in only one frame of its hold), and
     ``pose`` (n, k): per hold, an orthonormal basis of the directions in which a change of the
     sensor's pose moves that hold's keypoint coordinates. The view component is a per-keypoint
     error with those directions taken out (loaded with the opposite sign): an error of a hold
@@ -883,11 +886,23 @@ def _view_groups(lin: _Linear, observations: Sequence[TargetObservation], holds:
                 ids[key] = len(ids)
                 hold_of_group.append(holds[i])
             out[row] = ids[key]
+    # a coordinate seen in one frame of its hold: its view offset cannot be told from its noise
+    # (with one frame per hold the two are one variance, and the split of it was arbitrary:
+    # seen, a point noise of 6e-7 px where 2 px were drawn)
     if not ids:
         return out, np.zeros((len(lin.r), 0))
+    counts = np.bincount(out[out >= 0], minlength=len(ids))
+    kept = np.flatnonzero(counts >= 2)
+    renumber = np.full(len(ids), -1)
+    renumber[kept] = np.arange(len(kept))
+    out = np.where(out >= 0, renumber[np.maximum(out, 0)], -1)
+    hold_of_group = [hold_of_group[k] for k in kept]
+    n_groups = len(kept)
+    if not n_groups:
+        return out, np.zeros((len(lin.r), 0))
     # the mean Jacobian of every group (its rows are the same coordinate in each frame)
-    sums = np.zeros((len(ids), 6))
-    counts = np.zeros(len(ids))
+    sums = np.zeros((n_groups, 6))
+    counts = np.zeros(n_groups)
     g = out >= 0
     np.add.at(sums, out[g], lin.Js[g])
     np.add.at(counts, out[g], 1.0)
@@ -899,7 +914,7 @@ def _view_groups(lin: _Linear, observations: Sequence[TargetObservation], holds:
         idx = groups_of[h]
         U, sv, _ = np.linalg.svd(mean[idx], full_matrices=False)
         keep = sv > 1e-9 * max(float(sv.max()), 1e-300)
-        Q = np.zeros((len(ids), int(keep.sum())))
+        Q = np.zeros((n_groups, int(keep.sum())))
         Q[idx] = U[:, keep]
         cols.append(Q)
     Qall = np.hstack(cols)  # (groups, k)

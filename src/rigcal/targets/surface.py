@@ -106,10 +106,16 @@ def _cylinder(dims, p):
     return closest, _boundary_normals(p, closest, face, clamped)
 
 
-def _circle_board(dims, p):
+def _circle_board_rect(dims):
+    """The circle board, its plate's centre height in the board frame and its half width and
+    half height [m]."""
     board = board_from_dims(dims)
     cy = plate_centre_y(board, float(dims.get("holes_above_plate_centre_m", -0.3)))
-    w, hgt = board.width_m / 2, board.height_m / 2
+    return board, cy, board.width_m / 2, board.height_m / 2
+
+
+def _circle_board(dims, p):
+    board, cy, w, hgt = _circle_board_rect(dims)
     x = np.clip(p[:, 0], -w, w)
     y = np.clip(p[:, 1], cy - hgt, cy + hgt)
     clamped = (x != p[:, 0]) | (y != p[:, 1])
@@ -145,16 +151,12 @@ def _diamond_corners(dims):
 
 
 def _circle_board_corners(dims):
-    board = board_from_dims(dims)
-    cy = plate_centre_y(board, float(dims.get("holes_above_plate_centre_m", -0.3)))
-    w, hgt = board.width_m / 2, board.height_m / 2
+    _, cy, w, hgt = _circle_board_rect(dims)
     return np.array([[w, cy + hgt], [-w, cy + hgt], [-w, cy - hgt], [w, cy - hgt]])
 
 
 def _circle_board_boundary(dims, xy):
-    board = board_from_dims(dims)
-    cy = plate_centre_y(board, float(dims.get("holes_above_plate_centre_m", -0.3)))
-    w, hgt = board.width_m / 2, board.height_m / 2
+    _, cy, w, hgt = _circle_board_rect(dims)
     fx = w - np.abs(xy[:, 0])
     fy = hgt - np.abs(xy[:, 1] - cy)
     use_x = fx <= fy

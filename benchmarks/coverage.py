@@ -18,7 +18,8 @@ bias, pixel noise, lidar range noise, timing jitter, a clock offset, all at once
 there is 0.90 - 0.98 inside and a median NEES per degree of freedom within 0.5 - 2, per sensor
 kind.
 Usage: python benchmarks/coverage.py [--trials N] [--seed S] [--modes mcpe,fcpe,pse] [--priors both|off|only]
-       [--mocap-trials N] [--mocap-models pixel,...] [--mocap-holds N]  (--trials 0: mocap only)
+       [--mocap-trials N] [--mocap-models pixel,...] [--mocap-holds N] [--mocap-hold-floor R,T]
+       (--trials 0: mocap only)
 """
 
 from __future__ import annotations
@@ -51,6 +52,9 @@ def main() -> int:
     ap.add_argument("--mocap-models", default=",".join(ERROR_MODELS),
                     help="motion capture: error models (default: all)")
     ap.add_argument("--mocap-holds", type=int, default=4, help="motion capture: holds per sensor")
+    ap.add_argument("--mocap-hold-floor", default="0,0",
+                    help="motion capture: the MCS's per-hold accuracy the calibration is told, "
+                         "rotation_rad,translation_m (MocapOptions.hold_sigma_floor; default none)")
     ap.add_argument("--priors", default="both", choices=["both", "off", "only"],
                     help="board modes without mounting priors, with them, or both (default)")
     args = ap.parse_args()
@@ -74,14 +78,16 @@ def main() -> int:
     if args.mocap_trials:
         from rigcal.study.coverage import mocap_coverage
 
-        print(f"motion capture, {args.mocap_holds} holds per sensor: fraction inside the 95 % region "
+        floor = tuple(float(v) for v in args.mocap_hold_floor.split(","))
+        print(f"motion capture, {args.mocap_holds} holds per sensor, per-hold floor {floor[0]:g} rad / "
+              f"{floor[1]:g} m: fraction inside the 95 % region "
               "(6-DOF / translation) and median NEES per degree of freedom (0.89 when right), per "
               "sensor kind; goal 0.90-0.98 and 0.5-2")
         for model in args.mocap_models.split(","):
             t0 = time.perf_counter()
             with threadpool_limits(limits=1):
                 m = mocap_coverage(trials=args.mocap_trials, seed=args.seed, error_model=model,
-                                   holds=args.mocap_holds)
+                                   holds=args.mocap_holds, hold_sigma_floor=floor)
             kinds = "  ".join(
                 f"{k} {v['inside_6dof']:.2f}/{v['inside_3dof_translation']:.2f} NEES {v['nees_median']:.2f}"
                 + (f" (offset flagged {v['flagged']}, largest error of a determined one "

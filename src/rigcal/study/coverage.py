@@ -114,7 +114,7 @@ def _body_noise(rng: np.random.Generator) -> np.ndarray:
     return se3_exp(np.concatenate([rng.normal(0, _CAPTURE_RAD, 3), rng.normal(0, _CAPTURE_M, 3)]))
 
 
-def _trial(rng: np.random.Generator, holds: int, frames: int, model: str):
+def _trial(rng: np.random.Generator, holds: int, frames: int, model: str, hold_floor=(0.0, 0.0)):
     from rigcal.problem import mocap as _m
     from rigcal.problem.mocap import MocapSensor, TargetObservation
     calibrate_mocap_fit = _m.calibrate_mocap_fit
@@ -201,7 +201,7 @@ def _trial(rng: np.random.Generator, holds: int, frames: int, model: str):
         d[3:] *= 0.02 / np.linalg.norm(d[3:])
         initial[name] = T @ se3_exp(d)
     templates = {"diamond": TargetSurface.of(target)} if fl["surface"] else None
-    fit = calibrate_mocap_fit(sensors, obs, initial, templates)
+    fit = calibrate_mocap_fit(sensors, obs, initial, templates, _m.MocapOptions(hold_sigma_floor=hold_floor))
     out = {}
     for name in truth:
         est = fit.result.sensors[name]
@@ -222,14 +222,16 @@ def _trial(rng: np.random.Generator, holds: int, frames: int, model: str):
 
 
 def mocap_coverage(trials: int = 50, seed: int = 0, *, holds: int = 4, frames_per_hold: int = 5,
-                   error_model: str = "hold_bias") -> dict:
+                   error_model: str = "hold_bias", hold_sigma_floor: tuple[float, float] = (0.0, 0.0)) -> dict:
     """Fractions of ``trials`` seeded simulated sessions (see the module docstring) whose true
     ``T_robot_sensor`` lies inside the reported 95 % region, per sensor and over both, under
     ``error_model`` (one of :data:`ERROR_MODELS`).
 
     Returns a dict: ``trials``, ``seed``, ``holds``, ``frames_per_hold``, ``error_model``,
     ``checks`` (sensor estimates checked), ``failed`` (trials whose calibration raised) and
-    ``failures`` (each one's trial index and error),
+    ``failures`` (each one's trial index and error), ``hold_sigma_floor`` (rotation [rad],
+    translation [m]: the calibration's ``MocapOptions.hold_sigma_floor``, the MCS's per-hold
+    accuracy as a user would state it; default none),
     ``flagged`` (estimates whose clock offset mattered but was not determined: left out),
     ``inside_6dof`` and ``inside_3dof_translation`` (the reported covariance), ``nees_median``
     (median of ``e' C^-1 e / 6``), ``naive_inside_6dof`` and ``naive_inside_3dof_translation``
@@ -247,13 +249,20 @@ def mocap_coverage(trials: int = 50, seed: int = 0, *, holds: int = 4, frames_pe
         raise InputError(f"mocap_coverage: seed must be an integer >= 0, got {seed!r}")
     if error_model not in ERROR_MODELS:
         raise InputError(f"mocap_coverage: error_model must be one of {', '.join(ERROR_MODELS)}, got {error_model!r}")
+    try:
+        floor = tuple(float(v) for v in hold_sigma_floor)
+    except (TypeError, ValueError):
+        floor = ()
+    if len(floor) != 2 or not all(math.isfinite(v) and v >= 0 for v in floor):
+        raise InputError(f"mocap_coverage: hold_sigma_floor must be (rotation_rad, translation_m) >= 0, "
+                         f"got {hold_sigma_floor!r}")
     t0 = time.perf_counter()
     per: dict[str, list] = {"lidar": [], "camera": []}
     failed, failures = 0, []
     for k in range(int(trials)):
         rng = np.random.default_rng([int(seed), k])
         try:
-            res = _trial(rng, int(holds), int(frames_per_hold), error_model)
+            res = _trial(rng, int(holds), int(frames_per_hold), error_model, floor)
         except RigcalError as exc:
             failed += 1
             failures.append((k, str(exc)))
@@ -288,6 +297,7 @@ def mocap_coverage(trials: int = 50, seed: int = 0, *, holds: int = 4, frames_pe
         "holds": int(holds),
         "frames_per_hold": int(frames_per_hold),
         "error_model": error_model,
+        "hold_sigma_floor": floor,
         "failed": failed,
         "failures": failures,
         **{k: every[k] for k in ("checks", "flagged", "inside_6dof", "inside_3dof_translation", "nees_median",

@@ -43,6 +43,14 @@ def _row(label: str, f: dict) -> str:
             f"{f['relatives']:5d} {f['failures']:5d}/{f['runs']:<4d} {f['flagged']:5d}/{f['runs']:<4d}  {kinds}")
 
 
+def _floor(text: str) -> tuple[float, float]:
+    try:
+        r, t = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected rotation_rad,translation_m, got {text!r}") from None
+    return r, t
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--trials", type=int, default=60)
@@ -52,7 +60,7 @@ def main() -> int:
     ap.add_argument("--mocap-models", default=",".join(ERROR_MODELS),
                     help="motion capture: error models (default: all)")
     ap.add_argument("--mocap-holds", type=int, default=4, help="motion capture: holds per sensor")
-    ap.add_argument("--mocap-hold-floor", default="0,0",
+    ap.add_argument("--mocap-hold-floor", default="0,0", type=_floor,
                     help="motion capture: the MCS's per-hold accuracy the calibration is told, "
                          "rotation_rad,translation_m (MocapOptions.hold_sigma_floor; default none)")
     ap.add_argument("--priors", default="both", choices=["both", "off", "only"],
@@ -78,7 +86,7 @@ def main() -> int:
     if args.mocap_trials:
         from rigcal.study.coverage import mocap_coverage
 
-        floor = tuple(float(v) for v in args.mocap_hold_floor.split(","))
+        floor = args.mocap_hold_floor
         print(f"motion capture, {args.mocap_holds} holds per sensor, per-hold floor {floor[0]:g} rad / "
               f"{floor[1]:g} m: fraction inside the 95 % region "
               "(6-DOF / translation) and median NEES per degree of freedom (0.89 when right), per "

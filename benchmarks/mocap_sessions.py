@@ -27,8 +27,7 @@ from rigcal.mocap.config import load_mocap_config
 from rigcal.mocap.pipeline import run_mocap
 from rigcal.problem.compare import pose_error
 from rigcal.sim.mocap_scene import write_mocap_scene
-
-CHI2_95_6 = 12.591587243743977
+from rigcal.study.coverage import CHI2_95_6
 
 
 def _seeds(text: str) -> list[int]:

@@ -221,9 +221,13 @@ class MocapOptions:
                               f"got {self.correspondences!r}")
         if not int(self.max_correspondence_iterations) >= 1:
             raise ConfigError("mocap options: max_correspondence_iterations must be >= 1")
-        floor = tuple(float(v) for v in self.hold_sigma_floor)
+        try:
+            floor = tuple(float(v) for v in self.hold_sigma_floor)
+        except (TypeError, ValueError):
+            floor = ()
         if len(floor) != 2 or not all(np.isfinite(v) and v >= 0 for v in floor):
-            raise ConfigError("mocap options: hold_sigma_floor must be (rotation_rad, translation_m) >= 0")
+            raise ConfigError("mocap options: hold_sigma_floor must be (rotation_rad, translation_m) >= 0, "
+                              f"got {self.hold_sigma_floor!r}")
         object.__setattr__(self, "hold_sigma_floor", floor)
         if isinstance(self.min_holds, bool) or not int(self.min_holds) >= 1:
             raise ConfigError(f"mocap options: min_holds must be an integer >= 1, got {self.min_holds!r}")
@@ -886,11 +890,11 @@ def _view_groups(lin: _Linear, observations: Sequence[TargetObservation], holds:
                 ids[key] = len(ids)
                 hold_of_group.append(holds[i])
             out[row] = ids[key]
+    if not ids:
+        return out, np.zeros((len(lin.r), 0))
     # a coordinate seen in one frame of its hold: its view offset cannot be told from its noise
     # (with one frame per hold the two are one variance, and the split of it was arbitrary:
     # seen, a point noise of 6e-7 px where 2 px were drawn)
-    if not ids:
-        return out, np.zeros((len(lin.r), 0))
     counts = np.bincount(out[out >= 0], minlength=len(ids))
     kept = np.flatnonzero(counts >= 2)
     renumber = np.full(len(ids), -1)

@@ -114,7 +114,7 @@ def _body_noise(rng: np.random.Generator) -> np.ndarray:
     return se3_exp(np.concatenate([rng.normal(0, _CAPTURE_RAD, 3), rng.normal(0, _CAPTURE_M, 3)]))
 
 
-def _trial(rng: np.random.Generator, holds: int, frames: int, model: str, hold_floor=(0.0, 0.0)):
+def _trial(rng: np.random.Generator, holds: int, frames: int, model: str, options=None):
     from rigcal.problem import mocap as _m
     from rigcal.problem.mocap import MocapSensor, TargetObservation
     calibrate_mocap_fit = _m.calibrate_mocap_fit
@@ -201,7 +201,7 @@ def _trial(rng: np.random.Generator, holds: int, frames: int, model: str, hold_f
         d[3:] *= 0.02 / np.linalg.norm(d[3:])
         initial[name] = T @ se3_exp(d)
     templates = {"diamond": TargetSurface.of(target)} if fl["surface"] else None
-    fit = calibrate_mocap_fit(sensors, obs, initial, templates, _m.MocapOptions(hold_sigma_floor=hold_floor))
+    fit = calibrate_mocap_fit(sensors, obs, initial, templates, options or _m.MocapOptions())
     out = {}
     for name in truth:
         est = fit.result.sensors[name]
@@ -249,20 +249,16 @@ def mocap_coverage(trials: int = 50, seed: int = 0, *, holds: int = 4, frames_pe
         raise InputError(f"mocap_coverage: seed must be an integer >= 0, got {seed!r}")
     if error_model not in ERROR_MODELS:
         raise InputError(f"mocap_coverage: error_model must be one of {', '.join(ERROR_MODELS)}, got {error_model!r}")
-    try:
-        floor = tuple(float(v) for v in hold_sigma_floor)
-    except (TypeError, ValueError):
-        floor = ()
-    if len(floor) != 2 or not all(math.isfinite(v) and v >= 0 for v in floor):
-        raise InputError(f"mocap_coverage: hold_sigma_floor must be (rotation_rad, translation_m) >= 0, "
-                         f"got {hold_sigma_floor!r}")
+    from rigcal.problem.mocap import MocapOptions
+
+    options = MocapOptions(hold_sigma_floor=hold_sigma_floor)  # checks it (ConfigError)
     t0 = time.perf_counter()
     per: dict[str, list] = {"lidar": [], "camera": []}
     failed, failures = 0, []
     for k in range(int(trials)):
         rng = np.random.default_rng([int(seed), k])
         try:
-            res = _trial(rng, int(holds), int(frames_per_hold), error_model, floor)
+            res = _trial(rng, int(holds), int(frames_per_hold), error_model, options)
         except RigcalError as exc:
             failed += 1
             failures.append((k, str(exc)))
@@ -297,7 +293,7 @@ def mocap_coverage(trials: int = 50, seed: int = 0, *, holds: int = 4, frames_pe
         "holds": int(holds),
         "frames_per_hold": int(frames_per_hold),
         "error_model": error_model,
-        "hold_sigma_floor": floor,
+        "hold_sigma_floor": options.hold_sigma_floor,
         "failed": failed,
         "failures": failures,
         **{k: every[k] for k in ("checks", "flagged", "inside_6dof", "inside_3dof_translation", "nees_median",

@@ -148,3 +148,31 @@ def test_mocap_verdict_flags_noise_and_poor_matches():
     poor = mocap_verdict(_mocap_fit(0.55, 6), {"camera1": ["z (std 80 mm)"]})
     assert [c.name for c in poor.failed] == ["matches"] and "6 of 20" in poor.failed[0].detail
     assert any(c.name == "weak" for c in poor.checks)
+
+
+def test_mocap_time_offset_check_reports_every_estimate_with_its_std():
+    """Issue 23: a clock offset estimated but not determined to the resolution, whose effect on
+    the pose is small, is still reported with its value and std (a note); one that matters is a
+    failure naming the sensor; a determined one passes with its value."""
+    from rigcal.problem.consistency import mocap_verdict
+
+    def fit(status, offset, std, effect=1.0):
+        f = _mocap_fit(0.55, 19)
+        s = f.sensors["camera1"]
+        s.time_offset_status, s.time_offset_s, s.time_offset_std_s, s.time_offset_effect = status, offset, std, effect
+        return f
+
+    def check(f):
+        v = mocap_verdict(f)
+        return v, next(c for c in v.checks if c.name == "time_offset")
+
+    v, c = check(fit("irrelevant", 0.0552, 0.0123))
+    assert c.status == NOTE and "camera1 +55.2 +- 12.3 ms: not determined" in c.detail
+    assert v.status == "consistent"
+    v, c = check(fit("undetermined", 0.04, 0.03, effect=4.0))
+    assert c.status == FAIL and "camera1 (std 30 ms" in c.detail and "2.0 times" in c.detail
+    assert v.status != "consistent"
+    v, c = check(fit("determined", 0.0602, 0.0003))
+    assert c.status == PASS and "camera1 +60.2 +- 0.3 ms" in c.detail
+    none = mocap_verdict(fit("none", float("nan"), float("nan")))
+    assert not any(c.name == "time_offset" for c in none.checks)

@@ -148,6 +148,50 @@ def test_reml_is_the_dense_likelihood_where_v_is_a_covariance_and_refused_elsewh
     assert refused and accepted  # both sides were tried
 
 
+def test_independent_holds_are_factored_block_by_block_with_the_same_likelihood():
+    """Effects that share no row (one hold's capture, hold and view errors, not another's) make
+    N block diagonal; it is factored per block (a 15-hold session's noise fit 2.5x faster).
+    The likelihood is the dense one, and a block without a positive definite V is refused."""
+    from rigcal.problem.mocap_noise import _Reml
+
+    rng = np.random.default_rng(8)
+    holds, frames, pts = 3, 2, 4
+    n = holds * frames * pts
+    frame = np.repeat(np.arange(holds * frames), pts)
+    hold = frame // frames
+    groups = hold * pts + np.tile(np.arange(pts), holds * frames)  # a point in every frame of its hold
+    X = rng.normal(size=(n, 2))
+    cap = np.zeros((n, 2 * holds * frames))
+    hld = np.zeros((n, 2 * holds))
+    W = np.zeros((n, holds))
+    for f in range(holds * frames):
+        cap[frame == f, 2 * f:2 * f + 2] = rng.normal(size=(pts, 2))
+    for h in range(holds):
+        hld[hold == h, 2 * h:2 * h + 2] = rng.normal(size=(frames * pts, 2))
+        W[hold == h, h] = np.tile(rng.normal(size=pts), frames) * 0.6
+    known = np.zeros(n, dtype=bool)
+    known[frame == 1] = True  # rows of known variance, in a view group of none
+    groups = np.where(known, -1, groups)
+    r = rng.normal(size=n)
+    f = _Reml(r, X, {"capture": cap, "hold": hld, "view_pose": W}, groups, known)
+    assert len(f.blocks) == holds
+    Z = np.zeros((n, groups.max() + 1))
+    Z[np.flatnonzero(groups >= 0), groups[groups >= 0]] = 1.0
+    refused = accepted = 0
+    for phi in ([0.0, -1.0, 0.5, -2.0], [-1.0, 0.0, -3.0, 0.0], [0.5, 1.0, 1.0, 1.0], [-4.0, -2.0, -2.0, 3.0]):
+        phi = np.array(phi)
+        s2, th = f.theta(phi)
+        V = (np.diag(np.where(known, 1.0, s2)) + th[0] * cap @ cap.T + th[1] * hld @ hld.T
+             + th[2] * (Z @ Z.T - W @ W.T))
+        if np.linalg.eigvalsh(V).min() > 0:
+            accepted += 1
+            assert f(phi) == pytest.approx(_dense_reml(r, X, V), rel=1e-8, abs=1e-6)
+        else:
+            refused += 1
+            assert f(phi) == 1e300
+    assert refused and accepted
+
+
 def test_two_shapes_of_one_per_hold_error_are_tested_as_a_family():
     """Issue 23: two components that model the same per-hold error in different shapes (an
     isotropic pose error, a camera's affine error of its grid) each cost little to drop while

@@ -480,8 +480,8 @@ def _offset_check(fit) -> Check | None:
         elif status == "undetermined":
             bad.append(f"{name} (std {1000 * f.time_offset_std_s:.0f} ms: it would widen the pose's "
                        f"uncertainty {np.sqrt(f.time_offset_effect):.1f} times)")
-        elif status == "irrelevant":
-            idle.append(name)
+        elif status == "irrelevant":  # estimated all the same: the value and its std, in words
+            idle.append(f"{name} {1000 * f.time_offset_s:+.1f} +- {1000 * f.time_offset_std_s:.1f} ms")
     if bad:
         return Check("time_offset", FAIL,
                      "the target moved relative to the robot in the kept frames, and the clock offset "
@@ -492,10 +492,11 @@ def _offset_check(fit) -> Check | None:
     if det:
         return Check("time_offset", PASS, "clock offset between the MCS and each sensor (its stamps minus "
                      "the capture time): " + ", ".join(det)
-                     + (f"; {', '.join(idle)}: not determined, no effect" if idle else ""))
+                     + (f"; {', '.join(idle)}: not determined, hardly changes the pose "
+                        "(included in its covariance)" if idle else ""))
     if idle:
-        return Check("time_offset", NOTE, f"clock offset of {', '.join(idle)} not determined; at the "
-                     "motion seen it hardly changes the result (included in the covariance)")
+        return Check("time_offset", NOTE, f"clock offset of {', '.join(idle)}: not determined; at "
+                     "the motion seen it hardly changes the result (included in the covariance)")
     return None
 
 

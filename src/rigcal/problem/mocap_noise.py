@@ -164,6 +164,46 @@ class _Reml:
             self.names.append("view")
             self.units.append(float(np.sum(counts * counts)) / self.n)
         self.unit = np.array(self.units)
+        self._blocks(U, groups, K0=self.K - self.vp)
+
+    def _blocks(self, U: np.ndarray, groups: np.ndarray | None, K0: int) -> None:
+        """The random effects that share no row (nor a view group) are independent: ``N`` is
+        block diagonal over them (one block per hold in a mocap session) and is factored block
+        by block - O(sum k_b^3) instead of O(K^3). Each block lists its positive-sign effects
+        first, then the view's pose part (negative sign)."""
+        from scipy.sparse import coo_matrix
+        from scipy.sparse.csgraph import connected_components
+
+        n, K = U.shape
+        rows, cols = np.nonzero(U)
+        # nodes: the rows, then the effects, then the view groups
+        a, b = [rows], [n + cols]
+        if groups is not None and np.any(np.asarray(groups) >= 0):
+            g = np.asarray(groups)
+            a.append(np.flatnonzero(g >= 0))
+            b.append(n + K + g[g >= 0])
+            n_g = int(g.max()) + 1
+        else:
+            n_g = 0
+        a, b = np.concatenate(a), np.concatenate(b)
+        size = n + K + n_g
+        graph = coo_matrix((np.ones(len(a)), (a, b)), shape=(size, size))
+        _, label = connected_components(graph, directed=False)
+        of = label[n:n + K]
+        self.blocks = []
+        for lab in np.unique(of):
+            idx = np.flatnonzero(of == lab)
+            idx = np.concatenate([idx[idx < K0], idx[idx >= K0]])  # positive signs first
+            neg = int(np.sum(idx >= K0))
+            self.blocks.append((idx, neg, np.r_[np.ones(len(idx) - neg), -np.ones(neg)]))
+        # each block's inner products (and their sums over the view groups), and every
+        # effect's with the fixed effects and the residuals
+        self.YY_tall = self.YY[:, K:]
+        self.YYk_tall = self.YYk[:, K:]
+        self.W_tall = {size: W[:, K:] for size, W in self.by_size.items()}
+        self.block_YY = [self.YY[np.ix_(i, i)] for i, _, _ in self.blocks]
+        self.block_YYk = [self.YYk[np.ix_(i, i)] for i, _, _ in self.blocks]
+        self.block_W = [{size: W[np.ix_(i, i)] for size, W in self.by_size.items()} for i, _, _ in self.blocks]
 
     def theta(self, phi: np.ndarray) -> tuple[float, np.ndarray]:
         return float(np.exp(phi[0])), np.exp(phi[1:]) / self.unit
@@ -173,76 +213,51 @@ class _Reml:
         K, p = self.K, self.p
         view = th[-1] if self.by_size else 0.0
         th = th[: len(self.sizes)]
-        sign = np.ones(K)
         if self.vp:
             th = np.r_[th, view]
-            sign[K - self.vp:] = -1.0
             sizes = self.sizes + [self.vp]
         else:
             sizes = self.sizes
-        # Y' B^-1 Y, and log |B|
-        YBY = self.YY.copy()
+        # B = s2 I + view Z Z' in closed form: Y' B^-1 Y = (Y'Y - sum_g view/(s2 + n_g view)
+        # S_g S_g') / s2, and log |B|
+        coef = {size: view / (s2 + size * view) for size in self.by_size}
         logdetB = (self.n - self.n_grouped - self.n_known) * np.log(s2)
-        for size, W in self.by_size.items():
-            YBY -= view / (s2 + size * view) * W
         if self.by_size:
             c = self.group_counts
             logdetB += float(np.sum((c - 1) * np.log(s2) + np.log(s2 + c * view)))
-        YBY /= s2
+        T = self.YY_tall.copy()
+        for size, W in self.W_tall.items():
+            T -= coef[size] * W
+        T /= s2
         if self.n_known:
-            YBY += self.YYk
-        G, UQ, Ur = YBY[:K, :K], YBY[:K, K:K + p], YBY[:K, -1]
-        QQ, Qr, rr = YBY[K:K + p, K:K + p], YBY[K:K + p, -1], float(YBY[-1, -1])
+            T += self.YYk_tall
+        UQ, Ur = T[:K, :p], T[:K, p]
+        QQ, Qr, rr = T[K:K + p, :p], T[K:K + p, p], float(T[-1, p])
         g = np.sqrt(np.repeat(th, sizes)) if K else np.zeros(0)
         # V = B + W E W' (W = U g, E the signs): V^-1 = B^-1 - B^-1 W N^-1 W' B^-1 with
-        # N = E + W' B^-1 W, and log |V| = log |B| + log |det N|
-        N = np.diag(sign) + g[:, None] * G * g[None, :]
+        # N = E + W' B^-1 W, and log |V| = log |B| + log |det N|; N block by block
         gUQ = g[:, None] * UQ
         gUr = g * Ur
-        if K:
-            if self.vp:
-                # the view's pose part enters with a negative sign: V is a covariance only
-                # where it stays positive definite, i.e. (Haynsworth's inertia) where N has
-                # exactly as many negative eigenvalues as the signs. Elsewhere log |V| and
-                # r' V^-1 r are numbers of no likelihood (seen: -2 log L = -3e11 at a point
-                # noise of 1e-11, which the search then took)
-                # The test by blocks: N = [[A, B], [B', D]] with A (the positive signs) positive
-                # definite, and the Schur complement D - B' A^-1 B negative definite: two
-                # Cholesky factors (an eigendecomposition of N cost 10x more)
-                if not np.all(np.isfinite(N)):
-                    return 1e300
-                P = K - self.vp
-                rhs = np.column_stack([gUQ, gUr])
-                if P:
-                    ca = _chol(N[:P, :P])
-                    if ca is None:
-                        return 1e300
-                    AiB = _chol_solve(ca, N[:P, P:])
-                    y = _chol_solve(ca, rhs[:P])
-                    pa = np.diag(ca) ** 2
-                else:
-                    AiB, y, pa = np.zeros((0, self.vp)), rhs[:0], np.zeros(0)
-                cs = _chol(N[P:, :P] @ AiB - N[P:, P:])
-                if cs is None:
-                    return 1e300
-                pivots = np.r_[pa, np.diag(cs) ** 2]
-                scale = max(float(np.abs(np.diag(N)).max()), 1e-300)
-                if not np.all(np.isfinite(pivots)) or np.any(pivots < 1e-12 * scale):
-                    return 1e300
-                logdetM = float(np.sum(np.log(pivots)))
-                # the Schur complement is -C C': x_V = -(C C')^-1 (rhs_V - B' y)
-                xv = -_chol_solve(cs, rhs[P:] - N[P:, :P] @ y)
-                sol = np.vstack([y - AiB @ xv, xv])
-                MiQ, Mir = sol[:, :-1], sol[:, -1]
-            else:
-                cf = _chol(N)
-                if cf is None:
-                    return 1e300
-                logdetM = 2.0 * float(np.sum(np.log(np.diag(cf))))
-                sol = _chol_solve(cf, np.column_stack([gUQ, gUr]))
-                MiQ, Mir = sol[:, :-1], sol[:, -1]
-        else:
-            logdetM, MiQ, Mir = 0.0, gUQ, gUr
+        rhs = np.column_stack([gUQ, gUr])
+        sol = np.empty_like(rhs)
+        logdetM = 0.0
+        for (idx, neg, signs), YYb, YYkb, Wb in zip(self.blocks, self.block_YY, self.block_YYk, self.block_W):
+            G = YYb.copy()
+            for size, W in Wb.items():
+                G -= coef[size] * W
+            G /= s2
+            if self.n_known:
+                G += YYkb
+            gb = g[idx]
+            N = gb[:, None] * G * gb[None, :]
+            P = len(idx) - neg
+            N.flat[::len(idx) + 1] += signs
+            out = _factor_solve(N, P, rhs[idx])
+            if out is None:
+                return 1e300
+            logdetM += out[0]
+            sol[idx] = out[1]
+        MiQ, Mir = sol[:, :-1], sol[:, -1]
         QVQ = QQ - gUQ.T @ MiQ
         QVr = Qr - gUQ.T @ Mir
         rVr = rr - float(gUr @ Mir)
@@ -257,6 +272,46 @@ class _Reml:
         if not rPr >= 0.0:  # a quadratic form of a covariance: negative only by cancellation
             return 1e300
         return float(logdetV + logdetQ + rPr)
+
+
+def _factor_solve(N: np.ndarray, P: int, rhs: np.ndarray) -> tuple[float, np.ndarray] | None:
+    """``log |det N|`` and ``N^-1 rhs`` for a symmetric ``N`` whose first ``P`` signs are
+    positive and the rest negative, or None where it has not exactly that inertia.
+
+    The view's pose part enters with a negative sign: V is a covariance only where it stays
+    positive definite, i.e. (Haynsworth's inertia) where N has exactly as many negative
+    eigenvalues as the signs. Elsewhere log |V| and r' V^-1 r are numbers of no likelihood
+    (seen: -2 log L = -3e11 at a point noise of 1e-11, which the search then took). The test by
+    blocks: N = [[A, B], [B', D]] with A positive definite and the Schur complement
+    D - B' A^-1 B negative definite - two Cholesky factors (an eigendecomposition of N cost
+    10x more)."""
+    k = len(N)
+    if P == k:
+        cf = _chol(N)
+        if cf is None:
+            return None
+        return 2.0 * float(np.sum(np.log(np.diag(cf)))), _chol_solve(cf, rhs)
+    if not np.all(np.isfinite(N)):
+        return None
+    if P:
+        ca = _chol(N[:P, :P])
+        if ca is None:
+            return None
+        AiB = _chol_solve(ca, N[:P, P:])
+        y = _chol_solve(ca, rhs[:P])
+        pa = np.diag(ca) ** 2
+    else:
+        AiB, y, pa = np.zeros((0, k)), rhs[:0], np.zeros(0)
+    cs = _chol(N[P:, :P] @ AiB - N[P:, P:])
+    if cs is None:
+        return None
+    pivots = np.concatenate([pa, np.diag(cs) ** 2])
+    scale = max(float(np.abs(np.diag(N)).max()), 1e-300)
+    if not np.all(np.isfinite(pivots)) or np.any(pivots < 1e-12 * scale):
+        return None
+    # the Schur complement is -C C': x_V = -(C C')^-1 (rhs_V - B' y)
+    xv = -_chol_solve(cs, rhs[P:] - N[P:, :P] @ y)
+    return float(np.sum(np.log(pivots))), np.vstack([y - AiB @ xv, xv])
 
 
 def fit_components(r: np.ndarray, X: np.ndarray, loadings: Mapping[str, np.ndarray],

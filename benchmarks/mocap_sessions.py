@@ -22,12 +22,11 @@ from pathlib import Path
 
 import numpy as np
 
-from rigcal.geometry.se3 import invert, se3_log
 from rigcal.mocap.config import load_mocap_config
 from rigcal.mocap.pipeline import run_mocap
 from rigcal.problem.compare import pose_error
 from rigcal.sim.mocap_scene import write_mocap_scene
-from rigcal.study.coverage import CHI2_95_6
+from rigcal.study.coverage import CHI2_95_6, nees
 
 
 def _seeds(text: str) -> list[int]:
@@ -57,8 +56,7 @@ def main() -> int:
             run = run_mocap(load_mocap_config(scene.config_path))
         for name, est in run.result.sensors.items():
             e1 = pose_error(run.final[name], scene.truth[name])
-            e = se3_log(invert(est.T_reference_sensor) @ scene.truth[name])
-            d2 = float(e @ np.linalg.solve(est.covariance, e))
+            d2 = nees(est.T_reference_sensor, scene.truth[name], est.covariance)[0]
             kind = "lidar" if name.startswith("lidar") else "camera"
             nees[kind].append(d2)
             std_mm = 1000 * _rss(est.std, ("x_m", "y_m", "z_m"))

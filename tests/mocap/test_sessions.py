@@ -22,8 +22,8 @@ from rigcal.geometry.se3 import se3_exp, se3_log, invert
 from rigcal.mocap.config import load_mocap_config
 from rigcal.mocap.pipeline import run_mocap
 from rigcal.sim.mocap_scene import RobotPath, SceneTiming, two_sensor_rig, write_mocap_scene
+from rigcal.study.coverage import CHI2_95_6, nees
 
-CHI2_95_6 = 12.591587243743977
 CHI2_999_6 = 22.457744484825323
 QUICK = SceneTiming(hold_s=1.0, move_s=0.6, lead_s=0.4, gap_hold=None)
 
@@ -35,8 +35,7 @@ def _error(T: np.ndarray, T_true: np.ndarray) -> tuple[float, float]:
 
 def _nees(run, scene, name: str) -> float:
     est = run.result.sensors[name]
-    e = se3_log(invert(est.T_reference_sensor) @ scene.truth[name])
-    return float(e @ np.linalg.solve(est.covariance, e))
+    return nees(est.T_reference_sensor, scene.truth[name], est.covariance)[0]
 
 
 def _edit(path: Path, edit) -> Path:

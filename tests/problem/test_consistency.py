@@ -176,3 +176,23 @@ def test_mocap_time_offset_check_reports_every_estimate_with_its_std():
     assert c.status == PASS and "camera1 +60.2 +- 0.3 ms" in c.detail
     none = mocap_verdict(fit("none", float("nan"), float("nan")))
     assert not any(c.name == "time_offset" for c in none.checks)
+
+
+def test_a_region_widened_for_few_holds_gets_a_note_with_the_holds_that_would_narrow_it():
+    """Issue 23: with four holds a per-hold error rests on 2-3 degrees of freedom and the 95 %
+    region is widened 4-9x in variance; the verdict says so (a note, the result stands) and how
+    many more holds would bring the widening under 2x."""
+    from rigcal.problem.consistency import mocap_verdict
+    from rigcal.problem.mocap_noise import widening
+
+    f = _mocap_fit(0.55, 19)
+    s = f.sensors["camera1"]
+    s.noise_dof, s.region_widening = 2.0, widening(2.0)
+    v = mocap_verdict(f)
+    c = next(c for c in v.checks if c.name == "holds")
+    assert c.status == NOTE and v.status == "consistent"
+    assert "camera1 (4 holds, 2.0 degrees of freedom: std x 3.0; about 10 more holds" in c.detail
+    # at the holds it names (dof about in proportion) the widening is under the note's level
+    assert widening(2.0 * 14 / 4) < 2.0
+    s.noise_dof, s.region_widening = 12.0, widening(12.0)
+    assert not any(c.name == "holds" for c in mocap_verdict(f).checks)

@@ -412,8 +412,9 @@ def mocap_verdict(fit, weak: Mapping[str, list[str]] = {},  # noqa: B006 - read 
     explains within 3 configured sigma), ``time_offset`` (the clock offset between the MCS and
     each sensor whose target moved relative to the robot: estimated, or - when it could not
     be told from the pose and it matters - a failure), ``errors`` (the error components
-    estimated per sensor: a note), ``targets`` (configured targets never seen: a note) and
-    ``weak`` directions (a note)."""
+    estimated per sensor: a note), ``holds`` (sensors whose region was widened a lot for the few
+    holds their errors were estimated from, with how many more would help: a note),
+    ``targets`` (configured targets never seen: a note) and ``weak`` directions (a note)."""
     noisy, poor, errors = [], [], []
     for name, f in fit.sensors.items():
         ratio = f.noise_sigma / f.sigma_nominal if f.sigma_nominal > 0 else float("inf")
@@ -437,6 +438,9 @@ def mocap_verdict(fit, weak: Mapping[str, list[str]] = {},  # noqa: B006 - read 
         checks.append(offset)
     checks.append(Check("errors", NOTE, "error components estimated from the residuals (the "
                         "covariance holds them): " + "; ".join(errors)))
+    few = _few_holds_check(fit)
+    if few is not None:
+        checks.append(few)
     if unseen:
         checks.append(Check("targets", NOTE, "; ".join(f"target '{t}' {why}" for t, why in unseen.items())))
     weak_items = {s: w for s, w in weak.items() if w}
@@ -466,6 +470,33 @@ def mocap_error_text(f) -> str:
     if c.get("hold_m", 0.0) > 0 or c.get("hold_rad", 0.0) > 0:
         parts.append(f"{1000 * c.get('hold_m', 0.0):.2g} mm / {1000 * c.get('hold_rad', 0.0):.2g} mrad per hold")
     return f"{f.name} " + ", ".join(parts) + f" ({f.holds} holds)"
+
+
+#: a sensor's 95 % region widened by more than this (in variance) for the few holds its error
+#: model was estimated from gets a note saying how many more holds would narrow it
+MOCAP_WIDENING_NOTE = 2.0
+#: the degrees of freedom at which the widening is at most MOCAP_WIDENING_NOTE (F over chi2)
+_DOF_FOR_NOTE = 7.0
+
+
+def _few_holds_check(fit) -> Check | None:
+    """The ``holds`` note: sensors whose error components (per hold) rest on so few holds that
+    their 95 % region had to be widened by more than MOCAP_WIDENING_NOTE, with the holds that
+    would bring it under that (the degrees of freedom grow about as the holds do)."""
+    items = []
+    for name, f in fit.sensors.items():
+        k = float(getattr(f, "region_widening", 1.0))
+        nu = float(getattr(f, "noise_dof", float("inf")))
+        if not k > MOCAP_WIDENING_NOTE or not np.isfinite(nu) or nu <= 0:
+            continue
+        more = max(int(np.ceil(f.holds * _DOF_FOR_NOTE / nu)) - f.holds, 1)
+        items.append(f"{name} ({f.holds} holds, {nu:.1f} degrees of freedom: std x {np.sqrt(k):.1f}; "
+                     f"about {more} more hold{'s' if more > 1 else ''} would bring it under "
+                     f"x {np.sqrt(MOCAP_WIDENING_NOTE):.1f})")
+    if not items:
+        return None
+    return Check("holds", NOTE, "error model estimated from few holds, 95 % region widened for it: "
+                 + "; ".join(items) + " - hold the target at other distances, places and tilts")
 
 
 def _offset_check(fit) -> Check | None:

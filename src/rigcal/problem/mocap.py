@@ -573,6 +573,11 @@ class MocapSensorFit:
     time_offset_status: str = "none"
     #: distinct holds (views) behind the estimate
     views: int = 0
+    #: Satterthwaite's degrees of freedom of the covariance (its error components were
+    #: estimated from the residuals of few holds; ``inf``: known) and how much wider (in
+    #: variance) its 95 % region was made for that (1: not at all)
+    noise_dof: float = float("inf")
+    region_widening: float = 1.0
 
     @property
     def match_fraction(self) -> float:
@@ -939,6 +944,8 @@ class _SensorStats:
     offset_std: float
     offset_effect: float
     determined: bool
+    dof: float = float("inf")
+    widening: float = 1.0
 
 
 def _sensor_statistics(lin: _Linear, observations, holds, options: MocapOptions, edges=None) -> _SensorStats:
@@ -960,7 +967,8 @@ def _sensor_statistics(lin: _Linear, observations, holds, options: MocapOptions,
     parts = sandwich(X, loads, comp, prior, groups, lin.known)
     # the components were estimated from few groups: the covariance widened so that a 6-DOF
     # region holds the truth as often as it says (Satterthwaite's degrees of freedom)
-    k = widening(effective_dof(parts, comp, 6))
+    nu = effective_dof(parts, comp, 6)
+    k = widening(nu)
     cov_all = k * sum(v for c, v in parts.items() if c != "prior") + parts.get("prior", 0.0)
     cov = cov_all[:6, :6]
     offset_std, effect = float("nan"), 1.0
@@ -992,7 +1000,7 @@ def _sensor_statistics(lin: _Linear, observations, holds, options: MocapOptions,
              "view": float(np.sqrt(comp.get("view"))),
              "view_affine": float(np.sqrt(comp.get("view_affine")))}
     return _SensorStats(lin.cols, cov, np.zeros((6, 6)), comp.s2, comp, noise,
-                        (hold_r, hold_t), offset_std, effect, determined)
+                        (hold_r, hold_t), offset_std, effect, determined, float(nu), float(k))
 
 
 def _statistics(prob: Problem, sol, sensors, observations, holds, options: MocapOptions,
@@ -1363,6 +1371,7 @@ def calibrate_mocap_fit(
             time_offset_std_s=st.offset_std, time_offset_effect=st.offset_effect,
             time_offset_status=_offset_status(s.name in offsets, st.offset_std, st.offset_effect, options),
             views=distinct_holds(own, [h for h, o in zip(holds, shifted) if o.sensor == s.name]),
+            noise_dof=st.dof, region_widening=st.widening,
         )
     noise_model = {}
     for s in sensors:

@@ -52,7 +52,7 @@ from rigcal.errors import InputError, RigcalError
 from rigcal.geometry.se3 import from_rt, invert, se3_exp, se3_log
 from rigcal.geometry.so3 import matrix_from_rpy
 
-__all__ = ["CHI2_95_3", "CHI2_95_6", "ERROR_MODELS", "mocap_coverage"]
+__all__ = ["CHI2_95_3", "CHI2_95_6", "ERROR_MODELS", "mocap_coverage", "nees"]
 
 #: chi-square quantiles at 0.95 for 6 and 3 degrees of freedom
 CHI2_95_6 = 12.591587243743977
@@ -77,7 +77,10 @@ _FRAME_S = 0.25
 _VERTICAL_STEP_RAD = math.radians(2.0)
 
 
-def _nees(T_est: np.ndarray, T_true: np.ndarray, cov: np.ndarray) -> tuple[float, float]:
+def nees(T_est: np.ndarray, T_true: np.ndarray, cov: np.ndarray) -> tuple[float, float]:
+    """The normalised estimation error squared of ``T_est`` (the truth ``T_true``) under ``cov``
+    (6, 6) over the right perturbation ``log(T_est^-1 T_true)``: over all 6 DOF and over the
+    translation alone; ``inf`` when ``cov`` is singular."""
     e = se3_log(invert(T_est) @ T_true)
     try:
         d6 = float(e @ np.linalg.solve(cov, e))
@@ -210,8 +213,8 @@ def _trial(rng: np.random.Generator, holds: int, frames: int, model: str, option
         # the estimated offset is "stamps minus capture time": the stamps were late by offset
         off_err = abs(f.time_offset_s - offset[name]) if math.isfinite(f.time_offset_s) else math.nan
         out[name] = {
-            "nees": _nees(est.T_reference_sensor, truth[name], est.covariance),
-            "naive": _nees(est.T_reference_sensor, truth[name], f.covariance_naive),
+            "nees": nees(est.T_reference_sensor, truth[name], est.covariance),
+            "naive": nees(est.T_reference_sensor, truth[name], f.covariance_naive),
             "noise_ratio": f.noise_sigma / (sigma_l if name == "lidar" else sigma_c),
             "flagged": status == "undetermined",
             "offset_status": status,

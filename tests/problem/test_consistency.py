@@ -196,3 +196,9 @@ def test_a_region_widened_for_few_holds_gets_a_note_with_the_holds_that_would_na
     assert widening(2.0 * 14 / 4) < 2.0
     s.noise_dof, s.region_widening = 12.0, widening(12.0)
     assert not any(c.name == "holds" for c in mocap_verdict(f).checks)
+    # no per-hold error found in four holds: that many show one only when it is large
+    s.components = {**s.components, "hold_m": 0.0, "hold_rad": 0.0, "view_affine_px": 0.0}
+    c = next(c for c in mocap_verdict(f).checks if c.name == "holds")
+    assert "no per-hold error seen in camera1 (4) holds" in c.detail and "hold_sigma_floor" in c.detail
+    s.holds = 8
+    assert not any(c.name == "holds" for c in mocap_verdict(f).checks)

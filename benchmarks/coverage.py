@@ -59,7 +59,9 @@ def main() -> int:
     ap.add_argument("--mocap-trials", type=int, default=100, help="0 skips motion capture")
     ap.add_argument("--mocap-models", default=",".join(ERROR_MODELS),
                     help="motion capture: error models (default: all)")
-    ap.add_argument("--mocap-holds", type=int, default=4, help="motion capture: holds per sensor")
+    ap.add_argument("--mocap-holds", type=int, default=8,
+                    help="motion capture: holds per sensor (default 8: fewer cannot show a per-hold "
+                         "MCS error well, docs/mocap.md)")
     ap.add_argument("--mocap-hold-floor", default="0,0", type=_floor,
                     help="motion capture: the MCS's per-hold accuracy the calibration is told, "
                          "rotation_rad,translation_m (MocapOptions.hold_sigma_floor; default none)")

@@ -48,7 +48,7 @@ def main() -> int:
     args = ap.parse_args()
     print(f"machine: {platform.processor() or platform.machine()}, python {platform.python_version()}")
     print(f"{'seed':>4} {'sensor':8} {'error mm':>9} {'deg':>7} {'std mm':>8} {'deg':>7} {'NEES6':>7}  inside")
-    nees: dict[str, list[float]] = {"lidar": [], "camera": []}
+    by_kind: dict[str, list[float]] = {"lidar": [], "camera": []}
     t0 = time.perf_counter()
     for seed in _seeds(args.seeds):
         with tempfile.TemporaryDirectory() as d:
@@ -58,12 +58,12 @@ def main() -> int:
             e1 = pose_error(run.final[name], scene.truth[name])
             d2 = nees(est.T_reference_sensor, scene.truth[name], est.covariance)[0]
             kind = "lidar" if name.startswith("lidar") else "camera"
-            nees[kind].append(d2)
+            by_kind[kind].append(d2)
             std_mm = 1000 * _rss(est.std, ("x_m", "y_m", "z_m"))
             std_deg = _rss(est.std, ("roll_deg", "pitch_deg", "yaw_deg"))
             print(f"{seed:4d} {name:8} {e1.translation_m * 1e3:9.2f} {e1.rotation_deg:7.3f} {std_mm:8.2f} "
                   f"{std_deg:7.3f} {d2:7.2f}  {'yes' if d2 <= CHI2_95_6 else 'NO'}", flush=True)
-    for kind, v in nees.items():
+    for kind, v in by_kind.items():
         if v:
             a = np.array(v)
             print(f"{kind}: {np.mean(a <= CHI2_95_6):.2f} inside ({len(a)}), median NEES/dof {np.median(a) / 6:.2f}")

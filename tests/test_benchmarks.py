@@ -1,0 +1,25 @@
+"""The benchmark scripts whose figures the docs quote run as written (a tiny case each)."""
+
+from __future__ import annotations
+
+import runpy
+import sys
+from pathlib import Path
+
+import pytest
+
+BENCH = Path(__file__).resolve().parents[1] / "benchmarks"
+
+
+@pytest.mark.slow
+def test_the_rendered_sessions_benchmark_prints_every_sensor_and_the_summary(monkeypatch, capsys):
+    monkeypatch.setattr(sys, "argv", ["mocap_sessions.py", "--seeds", "7", "--holds", "4"])
+    with pytest.raises(SystemExit) as exc:
+        runpy.run_path(str(BENCH / "mocap_sessions.py"), run_name="__main__")
+    assert exc.value.code == 0
+    out = capsys.readouterr().out
+    rows = [line.split() for line in out.splitlines() if line.startswith("   7 ")]
+    assert {r[1] for r in rows} == {"lidar1", "camera1", "camera2"}
+    for r in rows:
+        assert float(r[6]) >= 0.0 and r[7] in ("yes", "NO")  # NEES6 and inside
+    assert "lidar: " in out and "camera: " in out and "median NEES/dof" in out

@@ -388,15 +388,22 @@ def test_hold_correlated_errors_widen_the_covariance():
 
 
 def test_reported_95_percent_regions_hold_the_truth():
+    """Issue 23, item 2: sessions with a per-hold MCS error (1 mm / 2 mrad) and per-corner
+    biases, eight holds per sensor: the regions hold the truth as often as they say and are not
+    too wide (median NEES per DOF within 0.5-2 per sensor kind; measured on 20 sessions: lidar
+    0.95 inside, 0.80, camera 1.00, 0.84; docs/mocap.md has 40 per model). The old covariance
+    (one noise scale, frames independent) held 0.23."""
     from rigcal.study.coverage import mocap_coverage
 
-    r = mocap_coverage(30, seed=1)
-    assert r["failed"] == 0 and r["checks"] == 60
-    assert r["inside_3dof_translation"] >= 0.8
-    assert r["inside_6dof"] >= 0.85
+    r = mocap_coverage(20, seed=1, holds=8)
+    assert r["failed"] == 0 and r["checks"] == 40
+    assert r["inside_6dof"] >= 0.9 and r["inside_3dof_translation"] >= 0.9
     assert r["naive_inside_6dof"] < r["inside_6dof"] - 0.3  # the old covariance did not
     for s in ("lidar", "camera"):
-        assert 0.8 < r["per_sensor"][s]["noise_ratio_median"] < 1.25
+        k = r["per_sensor"][s]
+        assert k["inside_6dof"] >= 0.85, (s, k)
+        assert 0.5 <= k["nees_median"] <= 2.0, (s, k)
+        assert 0.8 < k["noise_ratio_median"] < 1.25
 
 
 def _err(T, T_true):

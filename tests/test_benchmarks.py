@@ -23,3 +23,17 @@ def test_the_rendered_sessions_benchmark_prints_every_sensor_and_the_summary(mon
     for r in rows:
         assert float(r[6]) >= 0.0 and r[7] in ("yes", "NO")  # NEES6 and inside
     assert "lidar: " in out and "camera: " in out and "median NEES/dof" in out
+
+
+@pytest.mark.slow
+def test_the_corner_bias_benchmark_prints_a_row_per_square_size(monkeypatch, capsys):
+    monkeypatch.setattr(sys, "argv", ["corner_bias.py", "--views", "8", "--frames", "1"])
+    with pytest.raises(SystemExit) as exc:
+        runpy.run_path(str(BENCH / "corner_bias.py"), run_name="__main__")
+    assert exc.value.code == 0
+    out = capsys.readouterr().out
+    rows = [line.split("|") for line in out.splitlines() if "|" in line and not line.lstrip().startswith("square")]
+    assert rows, out
+    for r in rows:
+        sb_rms, subpix_rms = float(r[1].split()[0]), float(r[2].split()[0])
+        assert 0.0 < sb_rms < 0.5 and 0.0 < subpix_rms < 0.5  # corners found within half a pixel

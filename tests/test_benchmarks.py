@@ -11,27 +11,30 @@ import pytest
 BENCH = Path(__file__).resolve().parents[1] / "benchmarks"
 
 
+def _run(monkeypatch, capsys, script: str, *args: str) -> str:
+    """What ``python benchmarks/SCRIPT ARGS`` prints; fails unless it exits 0."""
+    monkeypatch.setattr(sys, "argv", [script, *args])
+    with pytest.raises(SystemExit) as exc:
+        runpy.run_path(str(BENCH / script), run_name="__main__")
+    assert exc.value.code == 0
+    return capsys.readouterr().out
+
+
 @pytest.mark.slow
 def test_the_rendered_sessions_benchmark_prints_every_sensor_and_the_summary(monkeypatch, capsys):
-    monkeypatch.setattr(sys, "argv", ["mocap_sessions.py", "--seeds", "7", "--holds", "4"])
-    with pytest.raises(SystemExit) as exc:
-        runpy.run_path(str(BENCH / "mocap_sessions.py"), run_name="__main__")
-    assert exc.value.code == 0
-    out = capsys.readouterr().out
+    out = _run(monkeypatch, capsys, "mocap_sessions.py", "--seeds", "7", "--holds", "4")
     rows = [line.split() for line in out.splitlines() if line.startswith("   7 ")]
     assert {r[1] for r in rows} == {"lidar1", "camera1", "camera2"}
     for r in rows:
         assert float(r[6]) >= 0.0 and r[7] in ("yes", "NO")  # NEES6 and inside
-    assert "lidar: " in out and "camera: " in out and "median NEES/dof" in out
+        if r[1].startswith("camera"):
+            assert float(r[8]) > 0.0  # how much the holds' errors share
+    assert "lidar: " in out and "camera: " in out and "median NEES/dof" in out and "camera shared: " in out
 
 
 @pytest.mark.slow
 def test_the_corner_bias_benchmark_prints_a_row_per_square_size(monkeypatch, capsys):
-    monkeypatch.setattr(sys, "argv", ["corner_bias.py", "--views", "8", "--frames", "1"])
-    with pytest.raises(SystemExit) as exc:
-        runpy.run_path(str(BENCH / "corner_bias.py"), run_name="__main__")
-    assert exc.value.code == 0
-    out = capsys.readouterr().out
+    out = _run(monkeypatch, capsys, "corner_bias.py", "--views", "8", "--frames", "1")
     rows = [line.split("|") for line in out.splitlines() if "|" in line and not line.lstrip().startswith("square")]
     assert rows, out
     for r in rows:

@@ -3,9 +3,9 @@
 Renders the rendered sessions' target (``write_mocap_scene``'s 0.5 m diamond, 7 x 6 inner
 corners of 29 mm) with ``rigcal.sim.mocap.render_image`` in random views 1.6-3.2 m from the
 sessions' 1024 x 768 pinhole camera (f = 1176 px), tilted up to 30 deg and turned any way, and
-locates the corners with the extractor the calibration uses (``extract_checkerboard``:
-``cv2.findChessboardCornersSB`` with ``CALIB_CB_ACCURACY``) and, for comparison, with
-``cv2.cornerSubPix`` (window 0.4 squares) after it. Per bin of square size [px] it prints the
+locates the corners with ``cv2.findChessboardCornersSB`` (``CALIB_CB_ACCURACY``, through
+``extract_checkerboard`` with its refinement off) and with ``cv2.cornerSubPix`` (window 0.4
+squares) after it - what ``extract_checkerboard`` does below ``SMALL_SQUARE_PX``. Per bin of square size [px] it prints the
 corners' RMS error [px], the mean error of the grid's border corners along the direction away
 from the grid's centre (> 0: pushed outward; a bias every view of that size shares) and of its
 interior corners, and the RMS translation error [mm] of a single view's pose from the corners
@@ -85,7 +85,7 @@ def main() -> int:
         found = {"sb": [], "subpix": []}
         for _ in range(args.frames):
             frame = render_image(camera, T, target, rng)
-            m = extract_checkerboard(frame, camera, (7, 6), kp, T, estimate_pose=False)
+            m = extract_checkerboard(frame, camera, (7, 6), kp, T, estimate_pose=False, refine_below_square_px=0.0)
             if not hasattr(m, "keypoints"):
                 break
             refined = cv2.cornerSubPix(frame.image, m.keypoints.astype(np.float32).reshape(-1, 1, 2), (win, win),

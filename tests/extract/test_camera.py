@@ -14,6 +14,7 @@ import pytest
 
 from rigcal.errors import InputError
 from rigcal.extract.camera import (
+    SMALL_SQUARE_PX,
     extract_checkerboard,
     extract_cylinder,
     order_grid,
@@ -469,3 +470,52 @@ def test_checkerboard_corners_of_the_mocap_scenes_views_are_at_the_truth_to_hund
             # the error is the view's, not the noise's: the noisy frames agree with the clean one
             # (measured 0.007-0.009 px)
             assert float(np.sqrt(np.mean((e[1:] - e[0]) ** 2))) < 0.02
+
+
+def _far_views(n: int, seed: int):
+    """``n`` rendered views of the sessions' diamond 2.9-3.2 m from their camera (squares about
+    11 px), with the truth's corner pixels."""
+    from rigcal.sim.mocap import render_image
+    from rigcal.targets.templates import diamond_target
+    camera = PinholeCamera.from_intrinsics(1024, 768, 1176.0, 1176.0, 511.5, 383.5)
+    target = diamond_target(0.5, 0.029, rows=6, cols=7, name="diamond")
+    kp = np.asarray(target.camera_keypoints, dtype=float)
+    rng = np.random.default_rng(seed)
+    out = []
+    while len(out) < n:
+        R = so3_exp(np.r_[rng.uniform(-0.4, 0.4, 2), rng.uniform(-np.pi, np.pi)]) @ np.diag([1.0, -1.0, -1.0])
+        ray = np.r_[rng.uniform(-0.2, 0.2, 2), 1.0]
+        T = from_rt(R, rng.uniform(2.9, 3.2) * ray / np.linalg.norm(ray) - R @ kp.mean(axis=0))
+        truth, ok = camera.project(transform_points(T, kp))
+        if ok.all():
+            out.append((render_image(camera, T, target, rng), camera, target, kp, T, truth))
+    return out
+
+
+def test_small_squares_are_refined_so_the_border_corners_are_not_pushed_outward():
+    # findChessboardCornersSB places the border corners of a grid with ~11 px squares about
+    # 0.04 px too far from its centre in every view (benchmarks/corner_bias.py); below
+    # SMALL_SQUARE_PX the extractor refines them with cornerSubPix, which does not
+    border = np.ones((6, 7), dtype=bool)
+    border[1:-1, 1:-1] = False
+    push = {"raw": [], "refined": []}
+    for frame, camera, target, kp, T, truth in _far_views(6, seed=11):
+        out = (truth - truth.mean(axis=0))
+        out /= np.linalg.norm(out, axis=1, keepdims=True)
+        for key, below in (("raw", 0.0), ("refined", SMALL_SQUARE_PX)):
+            m = extract_checkerboard(frame, camera, (7, 6), kp, T, estimate_pose=False, refine_below_square_px=below)
+            assert isinstance(m, Measurement)
+            assert m.quality["square_px"] < SMALL_SQUARE_PX
+            assert m.quality["corners_subpix"] == (1.0 if key == "refined" else 0.0)
+            assert np.max(np.abs(m.keypoints - truth)) < 0.5
+            push[key].append(np.sum((m.keypoints - truth) * out, axis=1)[border.ravel()].mean())
+    assert np.mean(push["raw"]) > 0.02, push          # measured: 0.035-0.057 px
+    assert abs(np.mean(push["refined"])) < 0.01, push  # measured: within 0.003 px
+
+
+@needs_vicon
+def test_the_papers_image_keeps_the_detector_corners_when_its_squares_are_large(vicon):
+    m = extract_checkerboard(ImageFrame("F1", 1, vicon["dia"]), vicon["camera"], vicon["pattern"], vicon["kp_cam"],
+                             vicon["T_true"], uncertainty=PoseUncertainty(0.03, math.radians(3.0), 3.0))
+    assert isinstance(m, Measurement), m
+    assert m.quality["corners_subpix"] == (1.0 if m.quality["square_px"] < SMALL_SQUARE_PX else 0.0)

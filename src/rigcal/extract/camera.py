@@ -441,6 +441,42 @@ def fit_outline(
 
 
 # ---------------------------------------------------------------------------- checkerboard
+#: below this square size [px] the grid's corners are refined with cv2.cornerSubPix: there
+#: findChessboardCornersSB (CALIB_CB_ACCURACY) pushes the grid's border corners outward from
+#: its centre (0.035-0.057 px at 6-13 px squares, the same in every view, so it does not
+#: average out over holds) and cornerSubPix, with a window of SUBPIX_WINDOW_SQUARES, does not
+#: and places a single view's pose better; from 13 px SB's corners are the better ones
+#: (benchmarks/corner_bias.py, docs/mocap.md)
+SMALL_SQUARE_PX = 13.0
+SUBPIX_WINDOW_SQUARES = 0.4
+
+
+def grid_square_px(corners: np.ndarray, pattern_size: tuple[int, int]) -> float:
+    """The median distance [px] between neighbouring corners of a grid (N, 2) in OpenCV's
+    row-major order (``pattern_size = (cols, rows)``)."""
+    cols, rows = pattern_size
+    g = np.asarray(corners, dtype=float).reshape(rows, cols, 2)
+    d = np.concatenate([np.linalg.norm(np.diff(g, axis=1), axis=2).ravel(),
+                        np.linalg.norm(np.diff(g, axis=0), axis=2).ravel()])
+    return float(np.median(d))
+
+
+def _refine_small_squares(gray: np.ndarray, corners: np.ndarray, pattern_size: tuple[int, int],
+                          below_px: float) -> tuple[np.ndarray, float, bool]:
+    """``(corners, square_px, refined)``: the corners (N, 2) refined by cv2.cornerSubPix when
+    the grid's squares are smaller than ``below_px`` (see SMALL_SQUARE_PX), else as given."""
+    square = grid_square_px(corners, pattern_size)
+    if not (square < below_px):
+        return corners, square, False
+    w = max(2, int(round(SUBPIX_WINDOW_SQUARES * square)))
+    refined = cv2.cornerSubPix(gray, np.ascontiguousarray(corners, dtype=np.float32).reshape(-1, 1, 2), (w, w),
+                               (-1, -1), (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-3))
+    out = refined.reshape(-1, 2).astype(float)
+    if not np.all(np.isfinite(out)) or np.max(np.linalg.norm(out - corners, axis=1)) > 0.5 * square:
+        return corners, square, False  # a corner ran off: keep the detector's
+    return out, square, True
+
+
 def _detect_corners(gray: np.ndarray, pattern_size: tuple[int, int], flags: int,
                     square_px: float | None = None):
     """Corners (N, 2) in ``gray`` or None. A large region is searched at half resolution first
@@ -492,6 +528,7 @@ def extract_checkerboard(
     black_level: int = 25,
     sb_flags: int = cv2.CALIB_CB_ACCURACY,
     max_order_residual_squares: float = 0.5,
+    refine_below_square_px: float = SMALL_SQUARE_PX,
     sensor: str = "",
     t_ns: int | None = None,
     target: str = "checkerboard",
@@ -584,6 +621,8 @@ def extract_checkerboard(
             f"({box.u_min}, {box.v_min})",
         )
     corners = corners + np.array([box.u_min, box.v_min], dtype=float)
+    corners, square_seen, refined = _refine_small_squares(gray, corners, (cols, rows), refine_below_square_px)
+    quality.update(square_px=square_seen, corners_subpix=float(refined))
     if T_exp is not None:
         expected_px, _ = camera.project(transform_points(T_exp, kp))
         corners, sym, err, runner = order_grid(corners, (cols, rows), expected_px)

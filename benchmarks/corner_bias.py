@@ -3,9 +3,9 @@
 Renders the rendered sessions' target (``write_mocap_scene``'s 0.5 m diamond, 7 x 6 inner
 corners of 29 mm) with ``rigcal.sim.mocap.render_image`` in random views 1.6-3.2 m from the
 sessions' 1024 x 768 pinhole camera (f = 1176 px), tilted up to 30 deg and turned any way, and
-locates the corners with ``cv2.findChessboardCornersSB`` (``CALIB_CB_ACCURACY``, through
-``extract_checkerboard`` with its refinement off) and with ``cv2.cornerSubPix`` (window 0.4
-squares) after it - what ``extract_checkerboard`` does below ``SMALL_SQUARE_PX``. Per bin of square size [px] it prints the
+locates the corners with ``extract_checkerboard`` twice: with its refinement off
+(``cv2.findChessboardCornersSB`` with ``CALIB_CB_ACCURACY``) and with it on at every size
+(``cv2.cornerSubPix`` after it, window 0.4 squares - what it does below ``SMALL_SQUARE_PX``). Per bin of square size [px] it prints the
 corners' RMS error [px], the mean error of the grid's border corners along the direction away
 from the grid's centre (> 0: pushed outward; a bias every view of that size shares) and of its
 interior corners, and the RMS translation error [mm] of a single view's pose from the corners
@@ -24,7 +24,7 @@ import time
 import cv2
 import numpy as np
 
-from rigcal.extract.camera import extract_checkerboard
+from rigcal.extract.camera import extract_checkerboard, grid_square_px
 from rigcal.geometry.se3 import invert, se3_exp
 from rigcal.geometry.so3 import so3_exp
 from rigcal.sensors.camera.pinhole import PinholeCamera
@@ -80,18 +80,16 @@ def main() -> int:
         if T is None:
             continue
         truth = camera.project(kp @ T[:3, :3].T + T[:3, 3])[0]
-        square = float(np.median(np.linalg.norm(np.diff(truth.reshape(6, 7, 2), axis=1), axis=2)))
-        win = max(2, int(round(0.4 * square)))
-        found = {"sb": [], "subpix": []}
+        square = grid_square_px(truth, (7, 6))
+        found: dict[str, list] = {"sb": [], "subpix": []}
         for _ in range(args.frames):
             frame = render_image(camera, T, target, rng)
-            m = extract_checkerboard(frame, camera, (7, 6), kp, T, estimate_pose=False, refine_below_square_px=0.0)
-            if not hasattr(m, "keypoints"):
-                break
-            refined = cv2.cornerSubPix(frame.image, m.keypoints.astype(np.float32).reshape(-1, 1, 2), (win, win),
-                                       (-1, -1), (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-3))
-            found["sb"].append(m.keypoints - truth)
-            found["subpix"].append(refined.reshape(-1, 2) - truth)
+            ms = [extract_checkerboard(frame, camera, (7, 6), kp, T, estimate_pose=False, refine_below_square_px=below)
+                  for below in (0.0, np.inf)]
+            if not all(hasattr(m, "keypoints") for m in ms) or not ms[1].quality["corners_subpix"]:
+                break  # not found, or a refined corner ran off (the extractor kept SB's)
+            for key, m in zip(found, ms):
+                found[key].append(m.keypoints - truth)
         else:
             J = _pose_jacobian(camera, T, kp)
             from_centre = truth - truth.mean(axis=0)

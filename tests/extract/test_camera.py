@@ -509,7 +509,7 @@ def test_small_squares_are_refined_so_the_border_corners_are_not_pushed_outward(
             assert m.quality["corners_subpix"] == (1.0 if key == "refined" else 0.0)
             assert np.max(np.abs(m.keypoints - truth)) < 0.5
             push[key].append(np.sum((m.keypoints - truth) * out, axis=1)[border.ravel()].mean())
-    assert np.mean(push["raw"]) > 0.02, push          # measured: 0.035-0.057 px
+    assert np.mean(push["raw"]) > 0.02, push          # measured: 0.034-0.066 px
     assert abs(np.mean(push["refined"])) < 0.01, push  # measured: within 0.003 px
 
 

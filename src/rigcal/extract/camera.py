@@ -443,7 +443,7 @@ def fit_outline(
 # ---------------------------------------------------------------------------- checkerboard
 #: below this square size [px] the grid's corners are refined with cv2.cornerSubPix: there
 #: findChessboardCornersSB (CALIB_CB_ACCURACY) pushes the grid's border corners outward from
-#: its centre (0.035-0.057 px at 6-13 px squares, the same in every view, so it does not
+#: its centre (0.034-0.066 px at 6-13 px squares, the same in every view, so it does not
 #: average out over holds) and cornerSubPix, with a window of SUBPIX_WINDOW_SQUARES, does not
 #: and places a single view's pose better; from 13 px SB's corners are the better ones
 #: (benchmarks/corner_bias.py, docs/mocap.md)

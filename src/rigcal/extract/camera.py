@@ -441,13 +441,15 @@ def fit_outline(
 
 
 # ---------------------------------------------------------------------------- checkerboard
-#: below this square size [px] the grid's corners are refined with cv2.cornerSubPix: there
-#: findChessboardCornersSB (CALIB_CB_ACCURACY) pushes the grid's border corners outward from
-#: its centre (0.034-0.066 px at 6-13 px squares, the same in every view, so it does not
-#: average out over holds) and cornerSubPix, with a window of SUBPIX_WINDOW_SQUARES, does not
-#: and places a single view's pose better; from 13 px SB's corners are the better ones
-#: (benchmarks/corner_bias.py, docs/mocap.md)
-SMALL_SQUARE_PX = 13.0
+#: below this square size [px] the grid's corners are refined with cv2.cornerSubPix (window
+#: SUBPIX_WINDOW_SQUARES): on the rendered sessions' 9-20 px squares findChessboardCornersSB
+#: (CALIB_CB_ACCURACY) pushes a grid's border corners outward (0.034-0.066 px below 13 px) and
+#: shifts a whole view's grid by about 0.02 px (RMS; cornerSubPix 0.007) - errors that look
+#: like a pose error and do not average out over holds; refined, the cameras come out 2-4x
+#: closer to the truth with regions that hold it. On the paper's image (31 px squares, JPEG)
+#: SB's corners are the better ones (PnP residual 0.07 px against 0.13-0.14 refined) - so the
+#: threshold lies between (benchmarks/corner_bias.py, benchmarks/mocap_sessions.py, docs/mocap.md)
+SMALL_SQUARE_PX = 20.0
 SUBPIX_WINDOW_SQUARES = 0.4
 
 
@@ -547,7 +549,10 @@ def extract_checkerboard(
     which cannot be told (a grid looks the same turned half round): the corners come in
     OpenCV's order with ``keypoint_index`` None, no pose, and ``quality["orientation_ambiguous"]``
     1 - order them with :func:`order_grid` against a prediction.
-    ``crop`` (a :class:`PixelBox`) overrides the predicted region.
+    ``crop`` (a :class:`PixelBox`) overrides the predicted region. A grid whose squares are
+    smaller than ``refine_below_square_px`` (default :data:`SMALL_SQUARE_PX`; 0: never) has its
+    corners refined with ``cv2.cornerSubPix`` (``quality["corners_subpix"]`` 1, and
+    ``quality["square_px"]`` the squares' size).
 
     With ``estimate_pose`` the pose comes from :func:`solve_pnp`; with ``outline_target``
     (K, 3) [m] (a planar polygon around the board, e.g. the diamond's corners, in order) its

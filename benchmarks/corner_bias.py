@@ -12,7 +12,8 @@ interior corners, the RMS over views of the whole grid's shift (the length of th
 view's corner errors: an error that looks like the pose's and does not average over holds),
 and the RMS translation error [mm] of a single view's pose from the corners
 (the mean of ``--frames`` noisy renders, the MCS exact). These are the figures docs/mocap.md
-quotes on why the rendered sessions' cameras' 95 % regions are a little narrow.
+quotes on why the rendered sessions' cameras' 95 % regions were narrow and where the
+extractor's refinement stops (``SMALL_SQUARE_PX``).
 
 Usage: python benchmarks/corner_bias.py [--views 120] [--frames 4] [--seed 3]
 """

@@ -514,7 +514,7 @@ def test_small_squares_are_refined_so_the_border_corners_are_not_pushed_outward(
 
 
 def test_mid_size_squares_are_refined_so_a_view_is_not_shifted_as_a_whole():
-    # at 14-19 px squares SB shifts a view's whole grid (the mean of its corners' errors) by
+    # at 13-20 px squares SB shifts a view's whole grid (the mean of its corners' errors) by
     # about 0.02 px RMS, cornerSubPix by 0.007 (benchmarks/corner_bias.py): an error that looks
     # like a pose error and does not average out over holds
     shift = {"raw": [], "refined": []}

@@ -4,7 +4,9 @@ Simulates 30 captures of the diamond and of the cylinder (rigcal.sim.mocap, exac
 extracts them once with the mocap-guided extractors from an initial calibration 3 cm / 5 deg
 off, then prints the median milliseconds of calibrate_mocap for: the diamond's corners (known
 correspondences), the diamond's points and the cylinder's points with the paper's
-centroid-aligned matching and with the surface distance (the default).
+centroid-aligned matching and with the surface distance (the default; the cylinder then by
+each point's range along its ray).
+
 Usage: python benchmarks/bench_mocap.py [--runs N] [--measurements N]
 """
 
@@ -51,7 +53,7 @@ def main() -> int:
         ("diamond, points, centroid-aligned (paper)", targets.diamond, "points", "centroid", 0.0005),
         ("diamond, points, surface distance (default)", targets.diamond, "points", "surface", 0.0005),
         ("cylinder, points, centroid-aligned (paper)", targets.cylinder, "points", "centroid", 0.0005),
-        ("cylinder, points, surface distance (default)", targets.cylinder, "points", "surface", 0.0005),
+        ("cylinder, points, surface then range along the ray (default)", targets.cylinder, "points", "surface", 0.0005),
     ]
     print(f"{platform.processor() or platform.machine()}, Python {platform.python_version()}, "
           f"numpy {np.__version__}, scipy {scipy.__version__}; {args.measurements} measurements, "

@@ -270,6 +270,15 @@ def test_hold_sigma_floor_is_read_and_checked(tmp_path):
         _options({"hold_sigma_floor": [-1.0, 0.001]}, "m.yaml")
 
 
+def test_curved_ranges_is_a_boolean(tmp_path):
+    from rigcal.mocap.config import _options
+
+    assert _options({}, "m.yaml").curved_ranges is True
+    assert _options({"curved_ranges": False}, "m.yaml").curved_ranges is False
+    with pytest.raises(InputError, match=r"m\.yaml: options\.curved_ranges: expected true or false, got 0"):
+        _options({"curved_ranges": 0}, "m.yaml")
+
+
 def test_dropouts_holds_and_the_clock_offset_are_configured(folder):
     text = CONFIG.replace("max_gap_s: 0.04", "max_gap_s: 0.04\n  max_dropout_s: 0.3").replace(
         "loss: huber", "loss: huber, min_holds: 4, time_offset_sigma_s: 0.02")

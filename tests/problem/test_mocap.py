@@ -203,9 +203,64 @@ def test_surface_correspondences_with_range_noise_stay_within_the_reported_uncer
     assert r.rmse_m["robot-lidar1"] == pytest.approx(0.005, rel=0.15)  # the point-to-surface distance
 
 
+def _ray_cast_cylinder_session(seed, range_noise_m, holds=4, frames=5):
+    """A VLP-16 (rigcal.sim's paper rig) scanning the paper's thin cylinder (56.4 mm tube) held
+    still ``holds`` times at 1.6-3 m, with range noise along every ray; exact MCS. (observations,
+    truth, start 2 cm / 2 deg off, surfaces)."""
+    import math
+
+    from rigcal.sim.mocap import (CYLINDER_HEIGHT_M, CYLINDER_RADIUS_M, LIDAR, SURFACE_TARGET, Placement,
+                                  cast_lidar, paper_rig, sample_target_pose)
+    from rigcal.sim.raw.lidar import vlp16
+
+    rng = np.random.default_rng([seed, 1])
+    rig = paper_rig(lidar=vlp16(range_sigma_m=range_noise_m))
+    target = cylinder_target(CYLINDER_RADIUS_M, CYLINDER_HEIGHT_M, name="cylinder")
+    obs = []
+    for h in range(holds):
+        T_mr = from_rt(matrix_from_rpy([0.0, 0.0, rng.uniform(-math.pi, math.pi)]), [*rng.uniform(-2, 2, 2), 0.0])
+        T_mt = sample_target_pose(rig, LIDAR, target, T_mr, rng, Placement(distance_range_m=(1.6, 3.0),
+                                                                             clutter_boxes=0))
+        for k in range(frames):
+            cloud = cast_lidar(rig.lidar, T_mr @ rig.T_robot_lidar, target, T_mt, (), rng, range_sigma_m=range_noise_m)
+            pts = cloud.points_xyz[cloud.fields["surface"] == SURFACE_TARGET]
+            obs.append(TargetObservation("lidar1", "cylinder", int((10 * h + k) * 2.5e8), invert(T_mr) @ T_mt, pts,
+                                         hold=str(h)))
+    d = rng.normal(size=6)
+    d[:3] *= math.radians(2.0) / np.linalg.norm(d[:3])
+    d[3:] *= 0.02 / np.linalg.norm(d[3:])
+    return obs, rig.T_robot_lidar, rig.T_robot_lidar @ se3_exp(d), {"cylinder": TargetSurface.of(target)}
+
+
+def test_a_thin_cylinder_under_range_noise_is_tied_by_each_points_range_along_its_ray():
+    """A VLP-16's 15 mm of range noise across a 56 mm tube makes its points' closest surface
+    points biased (the tube looks fatter, its axis nearer): the point-to-surface distance was
+    centimetres off outside its region; the range along each ray (the default) holds the truth
+    in its region about as often as it says."""
+    from rigcal.geometry.se3 import se3_log
+    from rigcal.problem.mocap import calibrate_mocap_fit
+
+    sensor = [MocapSensor("lidar1", SensorKind.LIDAR, sigma=0.01)]
+    out = {True: [], False: []}
+    for seed in range(6):
+        obs, truth, start, surfaces = _ray_cast_cylinder_session(seed, 0.015)
+        for ranges in out:
+            fit = calibrate_mocap_fit(sensor, obs, {"lidar1": start}, surfaces, MocapOptions(curved_ranges=ranges))
+            est = fit.result.sensors["lidar1"]
+            e = se3_log(invert(est.T_reference_sensor) @ truth)
+            out[ranges].append((np.linalg.norm(e[3:]), float(e @ np.linalg.solve(est.covariance, e))))
+    ray, surf = np.array(out[True]), np.array(out[False])
+    inside_ray, inside_surf = np.mean(ray[:, 1] <= 12.59), np.mean(surf[:, 1] <= 12.59)
+    assert inside_ray >= 4 / 6, ray
+    assert inside_surf <= 3 / 6, surf  # the biased model: confidently wrong
+    assert np.median(ray[:, 0]) < 0.7 * np.median(surf[:, 0]), (ray, surf)
+
+
 def test_correspondence_scheme_is_checked():
     with pytest.raises(ConfigError, match="correspondences must be one of"):
         MocapOptions(correspondences="magic")
+    with pytest.raises(ConfigError, match="curved_ranges must be true or false"):
+        MocapOptions(curved_ranges="yes")
 
 
 def test_bad_input_is_refused():

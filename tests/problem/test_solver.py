@@ -183,11 +183,35 @@ def _function(kind: str, rng: np.random.Generator, n: int, poses=None, points=No
         turn = matrix_from_rpy([0.0, 0.0, 0.01])
         rays = np.column_stack([u, u @ turn.T])
         return lambda TA, TB, P: observation_residuals(TA, TB, P, rays, sigma, MODEL_RAY_EDGE, surface=surface)
+    if kind == "cylinder_range":
+        # rays from B to the near side of a tube about A's z axis, measured at the case's poses
+        surface, measured, _, _ = _tube_rays(rng, poses[0][0], poses[1][0], n)
+        sigma = rng.uniform(0.01, 0.2, (n, 1))
+        return lambda TA, TB, P: observation_residuals(TA, TB, P, measured, sigma, MODEL_RANGE, surface=surface)
     model = MODEL_POINT if kind == "point3d" else MODEL_RADAR2D
     d = 3 if kind == "point3d" else 2
     measured = rng.normal(0.0, 3.0, (n, d))
     sigma = rng.uniform(0.01, 0.2, (n, d))
     return lambda TA, TB, P: observation_residuals(TA, TB, P, measured, sigma, model)
+
+
+def _tube_rays(rng, T_W_A, T_W_B, n, noise_m=0.05):
+    """A cylinder about A's z axis (its radius half B's distance from the axis) and n points
+    on the side that faces B, measured by B along their rays with a range error:
+    (surface, measured (n, 3) in B, their ranges' errors (n,), the hits (n, 3) in A)."""
+    from rigcal.targets.surface import TargetSurface
+    from rigcal.targets.templates import cylinder_target
+
+    T_A_B = invert(T_W_A) @ T_W_B
+    o = T_A_B[:3, 3]
+    radius = 0.5 * float(np.hypot(o[0], o[1]))
+    surface = TargetSurface.of(cylinder_target(radius, 200.0))
+    a = np.arctan2(o[1], o[0]) + rng.uniform(-0.9, 0.9, n)  # facing B, off grazing
+    q = np.column_stack([radius * np.cos(a), radius * np.sin(a), rng.uniform(-100.0, -1.0, n)])
+    x = q @ invert(T_A_B)[:3, :3].T + invert(T_A_B)[:3, 3]
+    rho = np.linalg.norm(x, axis=1)
+    e = rng.normal(0.0, noise_m, n)
+    return surface, x / rho[:, None] * (rho + e)[:, None], e, q
 
 
 def _central_differences(residuals, TA, TB, block: str, h: float = 1e-6) -> np.ndarray:
@@ -208,7 +232,8 @@ def _central_differences(residuals, TA, TB, block: str, h: float = 1e-6) -> np.n
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
 @pytest.mark.parametrize("block", ["A", "B"])
-@pytest.mark.parametrize("kind", ["point3d", "radar2d", "elevation", "surface", "range", "ray_edge"])
+@pytest.mark.parametrize("kind", ["point3d", "radar2d", "elevation", "surface", "range", "ray_edge",
+                                  "cylinder_range"])
 def test_jacobian_matches_central_differences_of_right_perturbation(kind, block, seed):
     """Contract: J[i, :, j] = d r_i / d xi_j with T <- T @ se3_exp(xi), xi = (omega, v)."""
     n = 12
@@ -256,6 +281,40 @@ def test_ray_plane_hits_and_the_range_residual_are_exact():
     r, _, _ = observation_residuals(TA, TB, np.zeros((5, 3)), u * (rho + e)[:, None], np.full((5, 1), 0.01),
                                     MODEL_RANGE)
     np.testing.assert_allclose(r[:, 0], e / 0.01, rtol=1e-9)
+
+
+def test_a_ray_meets_the_cylinder_where_the_geometry_says_and_its_range_residual_is_exact():
+    """Rays from B to the near side of a tube: the range is the hit's, a range error e gives the
+    residual e / sigma (no bias from the tube's curvature), and a ray that misses the tube is
+    not on it."""
+    from rigcal.problem.residuals import ray_surface_hits
+
+    rng = np.random.default_rng(4)
+    T_W_A, T_W_B = _random_pose(rng), _random_pose(rng)
+    surface, measured, e, q = _tube_rays(rng, T_W_A, T_W_B, 6)
+    TA, TB = np.repeat(T_W_A[None], 6, 0), np.repeat(T_W_B[None], 6, 0)
+    rho = np.linalg.norm(measured, axis=1)
+    s, on, _, _ = ray_surface_hits(TA, TB, measured / rho[:, None], surface)
+    np.testing.assert_allclose(s, rho - e, rtol=1e-10)
+    assert on.all()
+    r, _, _ = observation_residuals(TA, TB, np.zeros((6, 3)), measured, np.full((6, 1), 0.01), MODEL_RANGE,
+                                    surface=surface)
+    np.testing.assert_allclose(r[:, 0], e / 0.01, rtol=1e-8)
+    T_A_B = invert(T_W_A) @ T_W_B
+    away = (invert(T_A_B)[:3, :3] @ np.array([-T_A_B[1, 3], T_A_B[0, 3], 0.0]))[None]  # along the tangent
+    u = away / np.linalg.norm(away)
+    assert not ray_surface_hits(TA[:1], TB[:1], u, surface)[1][0]
+    # past the silhouette the range is that of the ray's closest approach, and so is its gradient
+    miss = u * 3.0
+
+    def f(A, B):
+        return observation_residuals(A, B, np.zeros((1, 3)), miss, np.full((1, 1), 0.01), MODEL_RANGE,
+                                     surface=surface)[0]
+
+    for block, J in zip("AB", observation_residuals(TA[:1], TB[:1], np.zeros((1, 3)), miss, np.full((1, 1), 0.01),
+                                                     MODEL_RANGE, surface=surface)[1:]):
+        np.testing.assert_allclose(J, _central_differences(f, TA[:1], TB[:1], block), rtol=1e-5,
+                                   atol=1e-6 * np.abs(J).max())
 
 
 # --------------------------------------------------------------------------- field of view

@@ -510,6 +510,10 @@ def _options(raw: Any, source: str) -> MocapOptions:
                 raise InputError(f"{w}: expected [rotation_rad, translation_m] (two numbers "
                                  f">= 0), got {value!r}")
             kw[key] = (float(value[0]), float(value[1]))
+        elif isinstance(default, bool):
+            if not isinstance(value, bool):
+                raise InputError(f"{w}: expected true or false, got {value!r}")
+            kw[key] = value
         elif isinstance(default, int) and not isinstance(default, bool):
             if not isinstance(value, int) or isinstance(value, bool) or value < 0:
                 raise InputError(f"{w}: expected an integer >= 0, got {value!r}")

@@ -33,7 +33,7 @@ its pose - the direct sensor-to-sensor coupling of overlapping views. Circle-boa
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from types import MappingProxyType
 from typing import Mapping, Sequence
 
@@ -214,8 +214,13 @@ class MocapOptions:
     #: offset the size of ``time_offset_sigma_s`` would widen the pose's uncertainty by more
     #: than ``OFFSET_MATTERS`` (in variance), the result is flagged
     time_offset_resolution_s: float = 0.001
+    #: a lidar's points on a curved surface (the cylinder's tube) tied by their range along the
+    #: ray (False: by their distance to the surface, biased under range noise across a thin tube)
+    curved_ranges: bool = True
 
     def __post_init__(self) -> None:
+        if not isinstance(self.curved_ranges, (bool, np.bool_)):
+            raise ConfigError(f"mocap options: curved_ranges must be true or false, got {self.curved_ranges!r}")
         if self.correspondences not in CORRESPONDENCES:
             raise ConfigError(f"mocap options: correspondences must be one of {CORRESPONDENCES}, "
                               f"got {self.correspondences!r}")
@@ -367,22 +372,61 @@ def _edge_items(o: TargetObservation, T_R_S: np.ndarray, T_R_T: np.ndarray, surf
     return rays[ok], (cross[ok] / np.sqrt(12.0))[:, None], side[ok]
 
 
-def _edge_selection(sensors, observations, poses, surfaces, options, block_poses=None) -> dict[int, tuple]:
-    """Per lidar observation with ring ends on a flat plate, the ends usable under the current
-    poses and their stds (:func:`_edge_items`): chosen once, when the surface phase starts, and
-    kept (chosen again at every solve, an end at a threshold could come and go and the
-    calibration never settle)."""
+#: a lidar point on a curved surface (the cylinder's tube) is tied by its range along its ray
+#: where the ray meets the surface at least this steeply (|cos| of the angle to the normal); a
+#: grazing point's range hardly depends on where the surface is across the ray, and its closest
+#: point would be biased, so it is left out
+RANGE_MIN_COS = 0.5
+
+
+def _ray_selection(o: TargetObservation, T_R_S: np.ndarray, T_R_T: np.ndarray, surface: TargetSurface):
+    """Which points of a lidar observation on a curved surface are tied by their range along
+    the ray (their rays meet the tube between its end discs at ``RANGE_MIN_COS`` or steeper,
+    under the current poses) and which by their distance to the surface (the rest that lie
+    nearest an end disc, where the surface is flat); grazing points are in neither."""
+    T_T_S = invert(T_R_T) @ T_R_S
+    p = np.asarray(o.measured, dtype=float)
+    rho = np.maximum(np.linalg.norm(p, axis=1), 1e-12)
+    w = (p / rho[:, None]) @ T_T_S[:3, :3].T
+    origin = np.broadcast_to(T_T_S[:3, 3], w.shape)
+    s, _, _, on = surface.ray_range(origin, w)
+    _, n = surface.closest(origin + s[:, None] * w)
+    steep = -np.einsum("ni,ni->n", n, w) >= RANGE_MIN_COS
+    _, normal = surface.closest(p @ T_T_S[:3, :3].T + T_T_S[:3, 3])
+    disc = ~on & (np.abs(normal[:, 2]) > 0.5)
+    return on & steep, disc
+
+
+def _edge_selection(sensors, observations, poses, surfaces, options, block_poses=None,
+                    curved: bool = False) -> dict[int, tuple]:
+    """Per lidar observation tied by its range along the ray, what ties it under the current
+    poses: on a flat plate with ring ends, the ends usable and their stds
+    (:func:`_edge_items`); on a curved surface (the cylinder), which points are tied by their
+    range and which by their distance to the surface (:func:`_ray_selection`). Chosen once, when
+    the surface phase starts, and kept (chosen again at every solve, an end at a threshold could
+    come and go and the calibration never settle). ``(rays, sigma, side, range_mask,
+    surface_mask)``, the masks None on a plate (every point by its range). Plates without
+    ``curved``, curved surfaces with it: a curved surface's range starts from the settled
+    point-to-surface answer (from the centroid phase's, biased by centimetres, a thin tube's
+    ranges can settle on a wrong pose)."""
     names = {s.name: s for s in sensors}
     target_of = _target_blocks(observations, options)
     free = options.target_pose_sigma is not None
     out = {}
     for i, o in enumerate(observations):
-        if o.edge_rays is None or names[o.sensor].kind != SensorKind.LIDAR or o.keypoints_target is not None \
-                or o.target not in surfaces or not surfaces[o.target].planar:
+        if names[o.sensor].kind != SensorKind.LIDAR or o.keypoints_target is not None or o.target not in surfaces:
+            continue
+        surface = surfaces[o.target]
+        plate = o.edge_rays is not None and surface.planar
+        if (plate and curved) or (not plate and not (curved and options.curved_ranges and surface.curved_ray)):
             continue
         block = f"target:{target_of[i]}"
         T_R_T = block_poses.get(block, o.T_robot_target) if block_poses and free else o.T_robot_target
-        out[i] = _edge_items(o, poses[o.sensor], T_R_T, surfaces[o.target])
+        if plate:
+            out[i] = (*_edge_items(o, poses[o.sensor], T_R_T, surface), None, None)
+        else:
+            out[i] = (np.zeros((0, 6)), np.zeros((0, 1)), np.zeros(0, dtype=int),
+                      *_ray_selection(o, poses[o.sensor], T_R_T, surface))
     return out
 
 
@@ -414,12 +458,22 @@ def _build(sensors, observations, poses, surfaces, options, boards=None, block_p
         if o.keypoints_target is not None:
             pts, meas = o.keypoints_target, o.measured
         elif phase == "surface" and edges and i in edges:
-            # a scanning lidar's points on a plate (:func:`_edge_selection` chose its ring ends):
-            # each point's range along its ray, the plate's outline where the rings leave it
-            rays, sig, _ = edges[i]
-            _add(items, (o.sensor, MODEL_RAY_EDGE, o.target, "edge"), block, i, np.zeros((len(rays), 3)),
-                 rays, sigma=sig)
-            pts, meas, model = np.zeros((len(o.measured), 3)), o.measured, MODEL_RANGE
+            # a scanning lidar's points (:func:`_edge_selection`): each point's range along its
+            # ray; on a plate its outline where the rings leave it, on a cylinder the points
+            # nearest its end discs by their distance to them
+            rays, sig, _, on_ray, on_disc = edges[i]
+            if len(rays):
+                _add(items, (o.sensor, MODEL_RAY_EDGE, o.target, "edge"), block, i, np.zeros((len(rays), 3)),
+                     rays, sigma=sig)
+            if on_disc is not None and on_disc.any():
+                T_R_T = block_poses.get(block, o.T_robot_target) if block_poses and free else o.T_robot_target
+                disc = replace(o, measured=o.measured[on_disc])
+                q, nrm, keep = _closest_on_surface(disc, sensor, poses[o.sensor], T_R_T, surfaces[o.target], options)
+                _add(items, (o.sensor, MODEL_SURFACE, o.target, "surface"), block, i, q, disc.measured[keep], nrm)
+            meas = o.measured if on_ray is None else o.measured[on_ray]
+            if not len(meas):
+                continue
+            pts, model = np.zeros((len(meas), 3)), MODEL_RANGE
         elif phase == "surface" and sensor.kind == SensorKind.LIDAR:
             T_R_T = block_poses.get(block, o.T_robot_target) if block_poses and free else o.T_robot_target
             pts, normals, keep = _closest_on_surface(o, sensor, poses[o.sensor], T_R_T, surfaces[o.target], options)
@@ -454,7 +508,7 @@ def _build(sensors, observations, poses, surfaces, options, boards=None, block_p
                 board=np.concatenate(d["board"]),
                 camera=s.camera,
                 normals=np.concatenate(d["normals"]) if surface else None,
-                surface=surfaces[target] if surface or model == MODEL_RAY_EDGE else None,
+                surface=surfaces[target] if surface or model in (MODEL_RAY_EDGE, MODEL_RANGE) else None,
             )
         )
     limits = []
@@ -1238,6 +1292,7 @@ def calibrate_mocap_fit(
     phase, phase_it, it = "centroid", 0, 0
     sol = None
     edges = None  # the ring ends' selection, made when the surface phase starts
+    curved_done = False  # the curved surfaces' ranges, chosen when the surface phase settles
     with single_threaded():
         block_poses: dict[str, np.ndarray] = {}
         while True:
@@ -1260,6 +1315,12 @@ def calibrate_mocap_fit(
                 if close or phase_it >= options.max_correspondence_iterations:
                     phase, phase_it = "surface", 0
                 continue
+            if settled and phase == "surface" and not curved_done:
+                curved_done = True
+                more = _edge_selection(sensors, observations, poses, surfaces, options, block_poses, curved=True)
+                if more:
+                    edges, phase_it = {**(edges or {}), **more}, 0
+                    continue
             if settled:
                 break
             if phase_it >= options.max_correspondence_iterations:

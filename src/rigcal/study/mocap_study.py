@@ -778,7 +778,8 @@ def _describe(target, sensor, lidar_measurement, correspondences, lidar_range_si
             match = "centroid-aligned nearest-neighbour correspondences to the template (paper III-D)"
         else:
             match = ("centroid-aligned nearest neighbours (paper III-D), then every point's distance to the "
-                     "target's surface")
+                     "target's surface" + (", then its range along its ray to the tube" if target == "cylinder"
+                                           else ""))
         noise = "exact ranges" if lidar_range_sigma_m == 0 else f"range noise {lidar_range_sigma_m * 1e3:.3g} mm"
         text = f"lidar measured by {what}; {match}; {noise}"
     else:

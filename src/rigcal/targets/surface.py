@@ -14,7 +14,9 @@ point-to-plane residual ``n . (y - p)``:
 A flat analytic target (the diamond plate, the circle board: the plane z = 0 of the target
 frame) is ``planar`` and has a ``boundary``: the signed in-plane distance of points to its
 outline (positive inside; the circle board's holes are not part of it) and its gradient -
-where a scanning lidar's rings leave the plate (:mod:`rigcal.problem.residuals`).
+where a scanning lidar's rings leave the plate (:mod:`rigcal.problem.residuals`). The
+cylinder's lateral surface answers ``ray_range``: where rays from a point meet it, for a
+lidar's range along its ray.
 
 Where the closest point lies inside a face the normal is the face's; where the point is
 beyond an edge or rim (the closest point is on the boundary) the normal is the direction from
@@ -165,6 +167,44 @@ def _circle_board_boundary(dims, xy):
     return np.where(use_x, fx, fy), np.where(use_x[:, None], gx, gy)
 
 
+def _cylinder_ray(dims, origins, dirs):
+    """Rays ``origins + s dirs`` (unit dirs) against the cylinder's lateral surface (axis z,
+    radius r; the infinite tube): the near hit's range ``s``, its gradients ``ds/d origin`` and
+    ``ds/d dir`` (N, 3), whether the ray meets the tube (``hit``) and the hit's height ``z``. A
+    ray that misses gets the range of its closest approach to the axis (where it would touch the
+    tube first) and that range's gradients, so the range is continuous across the silhouette."""
+    r = float(dims["radius_m"])
+    o, w = origins, dirs
+    oxy = np.column_stack([o[:, 0], o[:, 1], np.zeros(len(o))])
+    wxy = np.column_stack([w[:, 0], w[:, 1], np.zeros(len(w))])
+    a = np.maximum(np.einsum("ni,ni->n", wxy, wxy), 1e-12)
+    b = np.einsum("ni,ni->n", oxy, wxy)
+    c = np.einsum("ni,ni->n", oxy, oxy) - r * r
+    disc = b * b - a * c
+    hit = disc > 0
+    root = np.sqrt(np.maximum(disc, 0.0))
+    # the near root, without cancellation when the ray starts far from the tube
+    near = np.where(b < 0, c / np.maximum(root - b, 1e-300), (-b - root) / a)
+    s = np.where(hit, near, -b / a)
+    h = o + s[:, None] * w
+    rho = np.maximum(np.hypot(h[:, 0], h[:, 1]), 1e-12)
+    n = np.column_stack([h[:, 0] / rho, h[:, 1] / rho, np.zeros(len(h))])
+    # a hit: |h_xy| = r holds, so ds = -n . (do + s dw) / (n . w); a miss: s = -b / a
+    nw = np.einsum("ni,ni->n", n, w)
+    nw = np.where(np.abs(nw) < _MIN_COS, np.where(nw > 0, _MIN_COS, -_MIN_COS), nw)
+    g_o = np.where(hit[:, None], -n / nw[:, None], -wxy / a[:, None])
+    g_w = np.where(hit[:, None], -s[:, None] * n / nw[:, None],
+                   -oxy / a[:, None] + (2 * b / a**2)[:, None] * wxy)
+    return s, g_o, g_w, hit, h[:, 2]
+
+
+#: a ray meeting a surface at less than this |cos| of its angle to the normal is treated as
+#: meeting it at this angle (its range's gradient is bounded)
+_MIN_COS = 1e-3
+
+
+_RAY = {TargetKind.CYLINDER: _cylinder_ray}
+
 _BOUNDARY = {
     TargetKind.CHECKERBOARD_DIAMOND: (_diamond_boundary, _diamond_corners),
     TargetKind.CIRCLE_BOARD: (_circle_board_boundary, _circle_board_corners),
@@ -197,7 +237,7 @@ class TargetSurface:
     template cloud otherwise; ``TargetSurface.of_template(points)``: from a cloud alone.
     ``template`` (K, 3): the target's template points (for centroid-aligned matching)."""
 
-    __slots__ = ("name", "template", "_dims", "_analytic", "_boundary", "_tree", "_normals")
+    __slots__ = ("name", "template", "_dims", "_analytic", "_boundary", "_ray", "_tree", "_normals")
 
     def __init__(self, name: str, template: np.ndarray, kind: TargetKind = TargetKind.CUSTOM,
                  dims=None):
@@ -215,6 +255,7 @@ class TargetSurface:
         object.__setattr__(self, "_dims", dims)
         object.__setattr__(self, "_analytic", analytic)
         object.__setattr__(self, "_boundary", _BOUNDARY.get(kind) if analytic is not None else None)
+        object.__setattr__(self, "_ray", _RAY.get(kind) if analytic is not None else None)
         tree = normals = None
         if analytic is None:
             tree = cKDTree(t)
@@ -243,6 +284,25 @@ class TargetSurface:
         """A flat plate in the target frame's plane z = 0 with a known outline (the diamond,
         the circle board)."""
         return self._boundary is not None
+
+    @property
+    def curved_ray(self) -> bool:
+        """A curved analytic surface that answers :meth:`ray_range` (the cylinder)."""
+        return self._ray is not None
+
+    def ray_range(self, origins: Any, dirs: Any):
+        """Where rays ``origins + s dirs`` (N, 3), unit ``dirs``, target frame, meet the
+        cylinder's lateral surface: (N,) range ``s`` to the near hit, (N, 3) its gradients with
+        respect to the origin and the direction, (N,) whether the hit lies on the tube between
+        its two end discs. A ray that misses the tube gets the range of its closest approach
+        (``False``). Only for a ``curved_ray`` surface (ValueError otherwise)."""
+        if self._ray is None:
+            raise ValueError(f"target '{self.name}': no analytic curved surface to meet rays with")
+        o = np.asarray(origins, dtype=float).reshape(-1, 3)
+        w = np.asarray(dirs, dtype=float).reshape(-1, 3)
+        s, g_o, g_w, hit, z = self._ray(self._dims, o, w)
+        on = hit & (z <= 0.0) & (z >= -float(self._dims["height_m"]))
+        return s, g_o, g_w, on
 
     def boundary(self, xy: Any) -> tuple[np.ndarray, np.ndarray]:
         """(N,) signed distance [m] of in-plane points (N, 2) (the plane z = 0 of the target

@@ -306,6 +306,12 @@ def _closest_on_surface(obs: TargetObservation, sensor: MocapSensor, T_R_S: np.n
     return q[keep], n[keep], keep
 
 
+def _target_pose(o: TargetObservation, block: str, block_poses, free: bool) -> np.ndarray:
+    """The target pose an observation is built at: its block's estimate when target poses are
+    estimated (``free``) and one is known, else the observation's own MCS pose."""
+    return block_poses.get(block, o.T_robot_target) if block_poses and free else o.T_robot_target
+
+
 def _target_blocks(observations, options) -> list[int]:
     """Index of the target pose block of every observation (shared when several sensors see one
     target at the same time and target poses are estimated)."""
@@ -417,11 +423,11 @@ def _edge_selection(sensors, observations, poses, surfaces, options, block_poses
         if names[o.sensor].kind != SensorKind.LIDAR or o.keypoints_target is not None or o.target not in surfaces:
             continue
         surface = surfaces[o.target]
+        # a plate is never curved: the two selections are apart
         plate = o.edge_rays is not None and surface.planar
-        if (plate and curved) or (not plate and not (curved and options.curved_ranges and surface.curved_ray)):
+        if not ((options.curved_ranges and surface.curved_ray) if curved else plate):
             continue
-        block = f"target:{target_of[i]}"
-        T_R_T = block_poses.get(block, o.T_robot_target) if block_poses and free else o.T_robot_target
+        T_R_T = _target_pose(o, f"target:{target_of[i]}", block_poses, free)
         if plate:
             out[i] = (*_edge_items(o, poses[o.sensor], T_R_T, surface), None, None)
         else:
@@ -444,11 +450,11 @@ def _build(sensors, observations, poses, surfaces, options, boards=None, block_p
     for i, o in enumerate(observations):
         k = target_of[i]
         block = f"target:{k}"
+        # held target poses are the observations' own (they change with a clock offset)
+        T_R_T = _target_pose(o, block, block_poses, free)
         if k not in made:
             made[k] = block
-            # held target poses are the observations' own (they change with a clock offset)
-            start = block_poses.get(block, o.T_robot_target) if block_poses and free else o.T_robot_target
-            blocks.append(PoseBlock(block, start, (free,) * 6))
+            blocks.append(PoseBlock(block, T_R_T, (free,) * 6))
             if free:
                 prior_blocks.append(block)
                 prior_T.append(o.T_robot_target)
@@ -466,7 +472,6 @@ def _build(sensors, observations, poses, surfaces, options, boards=None, block_p
                 _add(items, (o.sensor, MODEL_RAY_EDGE, o.target, "edge"), block, i, np.zeros((len(rays), 3)),
                      rays, sigma=sig)
             if on_disc is not None and on_disc.any():
-                T_R_T = block_poses.get(block, o.T_robot_target) if block_poses and free else o.T_robot_target
                 disc = replace(o, measured=o.measured[on_disc])
                 q, nrm, keep = _closest_on_surface(disc, sensor, poses[o.sensor], T_R_T, surfaces[o.target], options)
                 _add(items, (o.sensor, MODEL_SURFACE, o.target, "surface"), block, i, q, disc.measured[keep], nrm)
@@ -475,7 +480,6 @@ def _build(sensors, observations, poses, surfaces, options, boards=None, block_p
                 continue
             pts, model = np.zeros((len(meas), 3)), MODEL_RANGE
         elif phase == "surface" and sensor.kind == SensorKind.LIDAR:
-            T_R_T = block_poses.get(block, o.T_robot_target) if block_poses and free else o.T_robot_target
             pts, normals, keep = _closest_on_surface(o, sensor, poses[o.sensor], T_R_T, surfaces[o.target], options)
             meas, model = o.measured[keep], MODEL_SURFACE
         else:

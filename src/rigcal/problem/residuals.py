@@ -118,9 +118,8 @@ def observation_residuals(
     if model == MODEL_SURFACE:
         return _surface_residuals(T_W_A, T_W_B, points_A, normals_A, measured, sigma, surface)
     if model == MODEL_RANGE:
-        if surface is not None and getattr(surface, "curved_ray", False):
-            return _curved_range_residuals(T_W_A, T_W_B, measured, sigma, surface)
-        return _range_residuals(T_W_A, T_W_B, measured, sigma)
+        curved = surface if getattr(surface, "curved_ray", False) else None
+        return _range_residuals(T_W_A, T_W_B, measured, sigma, curved)
     if model == MODEL_RAY_EDGE:
         return _edge_residuals(T_W_A, T_W_B, measured, sigma, surface)
     x, JA, JB = point_in_observer(T_W_A, T_W_B, points_A)
@@ -187,10 +186,15 @@ def ray_plane_hits(T_W_A: np.ndarray, T_W_B: np.ndarray, dirs_B: np.ndarray):
     return h, s, out[0][0], out[1][0], out[0][1], out[1][1]
 
 
-def _range_residuals(T_W_A, T_W_B, measured_B, sigma):
+def _range_residuals(T_W_A, T_W_B, measured_B, sigma, surface=None):
+    """The range residual to A's plane z = 0 (:func:`ray_plane_hits`), or to a curved
+    ``surface`` (:func:`ray_surface_hits`)."""
     rho = np.linalg.norm(measured_B, axis=1)
     u = measured_B / np.maximum(rho, 1e-12)[:, None]
-    _, s, _, _, ds_A, ds_B = ray_plane_hits(T_W_A, T_W_B, u)
+    if surface is None:
+        _, s, _, _, ds_A, ds_B = ray_plane_hits(T_W_A, T_W_B, u)
+    else:
+        s, _, ds_A, ds_B = ray_surface_hits(T_W_A, T_W_B, u, surface)
     inv_sigma = 1.0 / sigma  # (n, 1)
     r = (rho - s)[:, None] * inv_sigma
     return r, (-ds_A[:, None, :]) * inv_sigma[..., None], (-ds_B[:, None, :]) * inv_sigma[..., None]
@@ -208,15 +212,6 @@ def ray_surface_hits(T_W_A: np.ndarray, T_W_B: np.ndarray, dirs_B: np.ndarray, s
     ds = [np.einsum("ni,nij->nj", g_o, Jo) + np.einsum("ni,nij->nj", g_w, Jy - Jo)
           for Jo, Jy in ((Jo_A, Jy_A), (Jo_B, Jy_B))]
     return s, on, ds[0], ds[1]
-
-
-def _curved_range_residuals(T_W_A, T_W_B, measured_B, sigma, surface):
-    rho = np.linalg.norm(measured_B, axis=1)
-    u = measured_B / np.maximum(rho, 1e-12)[:, None]
-    s, _, ds_A, ds_B = ray_surface_hits(T_W_A, T_W_B, u, surface)
-    inv_sigma = 1.0 / sigma
-    r = (rho - s)[:, None] * inv_sigma
-    return r, (-ds_A[:, None, :]) * inv_sigma[..., None], (-ds_B[:, None, :]) * inv_sigma[..., None]
 
 
 def _edge_residuals(T_W_A, T_W_B, rays_B, sigma, surface):

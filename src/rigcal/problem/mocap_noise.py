@@ -201,9 +201,18 @@ class _Reml:
         self.YY_tall = self.YY[:, K:]
         self.YYk_tall = self.YYk[:, K:]
         self.W_tall = {size: W[:, K:] for size, W in self.by_size.items()}
-        self.block_YY = [self.YY[np.ix_(i, i)] for i, _, _ in self.blocks]
-        self.block_YYk = [self.YYk[np.ix_(i, i)] for i, _, _ in self.blocks]
-        self.block_W = [{size: W[np.ix_(i, i)] for size, W in self.by_size.items()} for i, _, _ in self.blocks]
+        # blocks of one shape (as many effects, as many of them negative: the holds of one
+        # sensor usually are) are stacked and factored together
+        shapes: dict[tuple[int, int], list[int]] = {}
+        for b, (idx, neg, _) in enumerate(self.blocks):
+            shapes.setdefault((len(idx), neg), []).append(b)
+        self.stacks = []
+        for (k, neg), members in shapes.items():
+            idx = np.stack([self.blocks[b][0] for b in members])  # (m, k)
+            pick = (idx[:, :, None], idx[:, None, :])
+            self.stacks.append(_Stack(idx=idx, positive=k - neg, signs=self.blocks[members[0]][2],
+                                      YY=self.YY[pick], YYk=self.YYk[pick],
+                                      W={size: W[pick] for size, W in self.by_size.items()}))
 
     def theta(self, phi: np.ndarray) -> tuple[float, np.ndarray]:
         return float(np.exp(phi[0])), np.exp(phi[1:]) / self.unit
@@ -241,22 +250,22 @@ class _Reml:
         rhs = np.column_stack([gUQ, gUr])
         sol = np.empty_like(rhs)
         logdetM = 0.0
-        for (idx, neg, signs), YYb, YYkb, Wb in zip(self.blocks, self.block_YY, self.block_YYk, self.block_W):
-            G = YYb.copy()
-            for size, W in Wb.items():
+        for st in self.stacks:
+            G = st.YY.copy()
+            for size, W in st.W.items():
                 G -= coef[size] * W
             G /= s2
             if self.n_known:
-                G += YYkb
-            gb = g[idx]
-            N = gb[:, None] * G * gb[None, :]
-            P = len(idx) - neg
-            N.flat[::len(idx) + 1] += signs
-            out = _factor_solve(N, P, rhs[idx])
+                G += st.YYk
+            gb = g[st.idx]
+            N = gb[:, :, None] * G * gb[:, None, :]
+            k = st.idx.shape[1]
+            N[:, np.arange(k), np.arange(k)] += st.signs
+            out = _factor_solve(N, st.positive, rhs[st.idx])
             if out is None:
                 return 1e300
             logdetM += out[0]
-            sol[idx] = out[1]
+            sol[st.idx] = out[1]
         MiQ, Mir = sol[:, :-1], sol[:, -1]
         QVQ = QQ - gUQ.T @ MiQ
         QVr = Qr - gUQ.T @ Mir
@@ -274,9 +283,48 @@ class _Reml:
         return float(logdetV + logdetQ + rPr)
 
 
+@dataclass(frozen=True)
+class _Stack:
+    """Blocks of one shape, stacked: ``idx`` (m, k) the effects of each block (its ``positive``
+    positive-sign effects first, ``signs`` (k,)), and their inner products ``YY``, ``YYk``
+    (m, k, k) and per view-group size ``W[size]`` (m, k, k)."""
+
+    idx: np.ndarray
+    positive: int
+    signs: np.ndarray
+    YY: np.ndarray
+    YYk: np.ndarray
+    W: Mapping[int, np.ndarray]
+
+
+def _chol_stack(a: np.ndarray) -> np.ndarray | None:
+    """The lower Cholesky factors of a stack of symmetric matrices (m, k, k), or None when one
+    of them is not (numerically) positive definite."""
+    try:
+        c = np.linalg.cholesky(a)
+    except np.linalg.LinAlgError:
+        return None
+    return c if np.all(np.isfinite(c)) else None
+
+
+def _chol_solve_stack(c: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a^-1 b`` for every matrix of a stack from :func:`_chol_stack`'s factors ``c`` (m, k, k);
+    ``b`` (m, k, j). LAPACK's triangular solves block by block: numpy solves a stack only by LU,
+    several times slower."""
+    out = np.empty(b.shape)
+    for i in range(len(c)):
+        out[i], _ = dpotrs(c[i], b[i], lower=1)
+    return out
+
+
+def _log_diag(c: np.ndarray) -> np.ndarray:
+    return np.log(np.diagonal(c, axis1=-2, axis2=-1))
+
+
 def _factor_solve(N: np.ndarray, P: int, rhs: np.ndarray) -> tuple[float, np.ndarray] | None:
-    """``log |det N|`` and ``N^-1 rhs`` for a symmetric ``N`` whose first ``P`` signs are
-    positive and the rest negative, or None where it has not exactly that inertia.
+    """``sum log |det N_b|`` and ``N_b^-1 rhs_b`` over a stack of symmetric matrices ``N``
+    (m, k, k) whose first ``P`` signs are positive and the rest negative (``rhs`` (m, k, j)),
+    or None where one of them has not exactly that inertia.
 
     The view's pose part enters with a negative sign: V is a covariance only where it stays
     positive definite, i.e. (Haynsworth's inertia) where N has exactly as many negative
@@ -284,34 +332,35 @@ def _factor_solve(N: np.ndarray, P: int, rhs: np.ndarray) -> tuple[float, np.nda
     (seen: -2 log L = -3e11 at a point noise of 1e-11, which the search then took). The test by
     blocks: N = [[A, B], [B', D]] with A positive definite and the Schur complement
     D - B' A^-1 B negative definite - two Cholesky factors (an eigendecomposition of N cost
-    10x more)."""
-    k = len(N)
+    10x more), all blocks of the stack at once."""
+    m, k, _ = N.shape
     if P == k:
-        cf = _chol(N)
+        cf = _chol_stack(N)
         if cf is None:
             return None
-        return 2.0 * float(np.sum(np.log(np.diag(cf)))), _chol_solve(cf, rhs)
+        return 2.0 * float(np.sum(_log_diag(cf))), _chol_solve_stack(cf, rhs)
     if not np.all(np.isfinite(N)):
         return None
     if P:
-        ca = _chol(N[:P, :P])
+        ca = _chol_stack(N[:, :P, :P])
         if ca is None:
             return None
-        AiB = _chol_solve(ca, N[:P, P:])
-        y = _chol_solve(ca, rhs[:P])
-        pa = np.diag(ca) ** 2
+        both = _chol_solve_stack(ca, np.concatenate([N[:, :P, P:], rhs[:, :P]], axis=2))
+        AiB, y = both[:, :, :k - P], both[:, :, k - P:]
+        pa = np.diagonal(ca, axis1=-2, axis2=-1) ** 2
     else:
-        AiB, y, pa = np.zeros((0, k)), rhs[:0], np.zeros(0)
-    cs = _chol(N[P:, :P] @ AiB - N[P:, P:])
+        AiB, y, pa = np.zeros((m, 0, k)), rhs[:, :0], np.zeros((m, 0))
+    BT = N[:, P:, :P]
+    cs = _chol_stack(BT @ AiB - N[:, P:, P:])
     if cs is None:
         return None
-    pivots = np.concatenate([pa, np.diag(cs) ** 2])
-    scale = max(float(np.abs(np.diag(N)).max()), 1e-300)
-    if not np.all(np.isfinite(pivots)) or np.any(pivots < 1e-12 * scale):
+    pivots = np.concatenate([pa, np.diagonal(cs, axis1=-2, axis2=-1) ** 2], axis=1)
+    scale = np.maximum(np.abs(np.diagonal(N, axis1=-2, axis2=-1)).max(axis=1), 1e-300)
+    if not np.all(np.isfinite(pivots)) or np.any(pivots < 1e-12 * scale[:, None]):
         return None
     # the Schur complement is -C C': x_V = -(C C')^-1 (rhs_V - B' y)
-    xv = -_chol_solve(cs, rhs[P:] - N[P:, :P] @ y)
-    return float(np.sum(np.log(pivots))), np.vstack([y - AiB @ xv, xv])
+    xv = -_chol_solve_stack(cs, rhs[:, P:] - BT @ y)
+    return float(np.sum(np.log(pivots))), np.concatenate([y - AiB @ xv, xv], axis=1)
 
 
 def fit_components(r: np.ndarray, X: np.ndarray, loadings: Mapping[str, np.ndarray],

@@ -156,33 +156,39 @@ def test_reml_is_the_dense_likelihood_where_v_is_a_covariance_and_refused_elsewh
     assert refused and accepted  # both sides were tried
 
 
-def test_independent_holds_are_factored_block_by_block_with_the_same_likelihood():
+@pytest.mark.parametrize("frames_per_hold", [(2, 2, 2), (2, 3, 2, 1)])
+def test_independent_holds_are_factored_block_by_block_with_the_same_likelihood(frames_per_hold):
     """Effects that share no row (one hold's capture, hold and view errors, not another's) make
-    N block diagonal; it is factored per block (a 15-hold session's noise fit 2.5x faster).
-    The likelihood is the dense one, and a block without a positive definite V is refused."""
+    N block diagonal; it is factored per block (a 15-hold session's noise fit 2.5x faster), the
+    blocks of one shape as one stack (holds with as many frames). The likelihood is the dense
+    one, and a block without a positive definite V is refused."""
     from rigcal.problem.mocap_noise import _Reml
 
     rng = np.random.default_rng(8)
-    holds, frames, pts = 3, 2, 4
-    n = holds * frames * pts
-    frame = np.repeat(np.arange(holds * frames), pts)
-    hold = frame // frames
-    groups = hold * pts + np.tile(np.arange(pts), holds * frames)  # a point in every frame of its hold
+    holds, pts = len(frames_per_hold), 4
+    hold_of_frame = np.repeat(np.arange(holds), frames_per_hold)
+    frames = len(hold_of_frame)
+    n = frames * pts
+    frame = np.repeat(np.arange(frames), pts)
+    hold = hold_of_frame[frame]
+    groups = hold * pts + np.tile(np.arange(pts), frames)  # a point in every frame of its hold
     X = rng.normal(size=(n, 2))
-    cap = np.zeros((n, 2 * holds * frames))
+    cap = np.zeros((n, 2 * frames))
     hld = np.zeros((n, 2 * holds))
     W = np.zeros((n, holds))
-    for f in range(holds * frames):
+    for f in range(frames):
         cap[frame == f, 2 * f:2 * f + 2] = rng.normal(size=(pts, 2))
     for h in range(holds):
-        hld[hold == h, 2 * h:2 * h + 2] = rng.normal(size=(frames * pts, 2))
-        W[hold == h, h] = np.tile(rng.normal(size=pts), frames) * 0.6
+        hld[hold == h, 2 * h:2 * h + 2] = rng.normal(size=(frames_per_hold[h] * pts, 2))
+        W[hold == h, h] = np.tile(rng.normal(size=pts), frames_per_hold[h]) * 0.6
     known = np.zeros(n, dtype=bool)
     known[frame == 1] = True  # rows of known variance, in a view group of none
     groups = np.where(known, -1, groups)
     r = rng.normal(size=n)
     f = _Reml(r, X, {"capture": cap, "hold": hld, "view_pose": W}, groups, known)
     assert len(f.blocks) == holds
+    assert len(f.stacks) == len(set(frames_per_hold))  # one stack per block shape
+    assert sum(len(st.idx) for st in f.stacks) == holds
     Z = np.zeros((n, groups.max() + 1))
     Z[np.flatnonzero(groups >= 0), groups[groups >= 0]] = 1.0
     refused = accepted = 0

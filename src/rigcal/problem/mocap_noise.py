@@ -311,6 +311,8 @@ def _chol_solve_stack(c: np.ndarray, b: np.ndarray) -> np.ndarray:
     """``a^-1 b`` for every matrix of a stack from :func:`_chol_stack`'s factors ``c`` (m, k, k);
     ``b`` (m, k, j). LAPACK's triangular solves block by block: numpy solves a stack only by LU,
     several times slower."""
+    if c.shape[1] == 1:  # the jitter's lone effects: a division
+        return b / np.square(c)
     out = np.empty(b.shape)
     for i in range(len(c)):
         out[i], _ = dpotrs(c[i], b[i], lower=1)

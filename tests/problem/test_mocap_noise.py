@@ -257,3 +257,49 @@ def test_rows_of_known_variance_keep_it_and_share_only_the_random_effects(shared
     if not shared:
         w = np.where(known, 1.0, 1.0 / comp.s2)
         np.testing.assert_allclose(sum(parts.values()), np.linalg.inv(X.T @ (X * w[:, None])), rtol=1e-8)
+
+
+@pytest.mark.parametrize("x0, minimum", [(0.0, 0.3), (0.0, -0.2), (2.0, 7.3), (-5.0, -19.6), (6.0, 9.4)])
+def test_the_line_search_from_a_start_finds_the_minimum_a_whole_range_search_finds(x0, minimum):
+    """The noise fit's sweeps search each log variance from where it stands (a bracket grown
+    downhill, then Brent's parabolas): the same minimum as a bounded search over the whole
+    range, inside the range or at its bound, in fewer evaluations."""
+    from scipy.optimize import minimize_scalar
+
+    from rigcal.problem.mocap_noise import _XATOL, _line_min
+
+    a, b = -20.0, 10.0
+    calls = []
+
+    def fun(v):
+        calls.append(v)
+        return float(np.log1p((v - minimum) ** 2) + 0.1 * (v - minimum) ** 2)
+
+    x, fx = _line_min(fun, x0, fun(x0), a, b)
+    ours = len(calls) - 1
+    whole = minimize_scalar(fun, bounds=(a, b), method="bounded", options={"xatol": _XATOL})
+    assert all(a <= v <= b for v in calls)
+    assert x == pytest.approx(whole.x, abs=3 * _XATOL)
+    assert x == pytest.approx(float(np.clip(minimum, a, b)), abs=3 * _XATOL)
+    assert fx == fun(x)
+    if abs(x0 - minimum) < 1.0:  # a sweep's usual start, next to its optimum
+        assert ours < whole.nfev
+    else:  # the bracket's growth costs a few evaluations more
+        assert ours <= whole.nfev + 6
+
+
+def test_the_line_search_stops_at_a_bound_the_value_rises_from_and_keeps_a_flat_start():
+    """A variance component the residuals do not need sits at its lower bound: the search
+    from there confirms it in two evaluations; on a flat function it finds nothing lower."""
+    from rigcal.problem.mocap_noise import _line_min
+
+    calls = []
+
+    def rising(v):
+        calls.append(v)
+        return v
+
+    x, fx = _line_min(rising, -30.0, -30.0, -30.0, 12.0)
+    assert (x, fx) == (-30.0, -30.0) and len(calls) == 2
+    x, fx = _line_min(lambda v: 1.0, 3.0, 1.0, -30.0, 12.0)
+    assert fx == 1.0 and -30.0 <= x <= 12.0

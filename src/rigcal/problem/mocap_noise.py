@@ -71,6 +71,8 @@ LIKELIHOOD_RATIO = 2.71
 UPPER_COMPONENTS = ("view",)
 UPPER_DEVIANCE = 1.0
 _SWEEPS = 4
+#: sweeps stop when one lowers -2 log L by less than this (the tests compare differences of 2.71)
+_SWEEP_GAIN = 1e-4
 
 
 @dataclass(frozen=True)
@@ -411,11 +413,10 @@ def fit_components(r: np.ndarray, X: np.ndarray, loadings: Mapping[str, np.ndarr
                         y[i] = v
                         return f(y)
 
-                    r = minimize_scalar(along, bounds=(lo[i], b_hi[i]), method="bounded",
-                                        options={"xatol": 1e-3})
-                    if r.fun < fx:
-                        x[i], fx = r.x, float(r.fun)
-                if before - fx < 1e-6:
+                    v, fv = _line_min(along, x[i], fx, lo[i], b_hi[i])
+                    if fv < fx:
+                        x[i], fx = v, fv
+                if before - fx < _SWEEP_GAIN:
                     break
             res = minimize(f, x, method="L-BFGS-B", bounds=list(zip(lo, b_hi)))
             if res.fun < fx:
@@ -493,6 +494,106 @@ def fit_components(r: np.ndarray, X: np.ndarray, loadings: Mapping[str, np.ndarr
         elif c not in values and low > 0:
             values[c] = low
     return Components(s2=s2, values=values, dof=dof, floored=floored, log_cov=log_cov)
+
+
+#: the line search's tolerance in a log variance, and its first step
+_XATOL = 1e-3
+_FIRST_STEP = 0.5
+
+
+def _line_min(fun, x0: float, f0: float, a: float, b: float) -> tuple[float, float]:
+    """The minimum of ``fun`` over ``[a, b]`` near ``x0`` (where it is ``f0``): steps that double
+    from ``x0`` downhill until the value rises bracket it (three points, the middle lowest),
+    then Brent's parabolic search from that bracket; a minimum at a bound by the bounded
+    search between the last two steps. (A bounded search over the whole range cost about twice
+    the evaluations: most sweeps start next to the optimum.)"""
+    side = []
+    for d in (1.0, -1.0):
+        x1 = min(max(x0 + d * _FIRST_STEP, a), b)
+        if x1 == x0:
+            side.append(None)
+            continue
+        f1 = fun(x1)
+        if f1 < f0:
+            break
+        side.append((x1, f1))
+    else:  # not lower on either side: the minimum is within a step of x0 (or at x0's bound)
+        hi, lo = side
+        if hi is not None and lo is not None:
+            return _brent(fun, lo, (x0, f0), hi)
+        other = hi or lo
+        return _at_bound(fun, (x0, f0), other)
+    prev, cur, step = (x0, f0), (x1, f1), _FIRST_STEP
+    while True:
+        step *= 2.0
+        nxt = min(max(cur[0] + d * step, a), b)
+        if nxt == cur[0]:  # downhill to the bound
+            return _at_bound(fun, cur, prev)
+        f_nxt = fun(nxt)
+        if f_nxt >= cur[1]:
+            return _brent(fun, prev, cur, (nxt, f_nxt))
+        prev, cur = cur, (nxt, f_nxt)
+
+
+_GOLD = 0.3819660112501051  # (3 - sqrt 5) / 2
+
+
+def _brent(fun, p, m, q) -> tuple[float, float]:
+    """The minimum of ``fun`` inside a bracket of (x, f) points ``p, m, q`` (``m`` between them
+    and not higher than either): parabolas through the three best points, a golden-section step
+    into the larger side where a parabola's vertex is not well inside, until the bracket is
+    narrower than twice the tolerance (Brent's method, from the bracket's known values)."""
+    (a, fa), (x, fx), (c, fc) = sorted((p, m, q))
+    if not (fx <= fa and fx <= fc):
+        return _bounded(fun, a, c, min((a, fa), (x, fx), (c, fc), key=lambda t: t[1]))
+    # w, v: the second and third best points
+    (w, fw), (v, fv) = sorted(((a, fa), (c, fc)), key=lambda t: t[1])
+    for _ in range(100):
+        if c - a <= 2.0 * _XATOL:
+            break
+        u = None
+        den = 2.0 * ((x - w) * (fx - fv) - (x - v) * (fx - fw))
+        if den != 0.0:
+            u = x - ((x - w) ** 2 * (fx - fv) - (x - v) ** 2 * (fx - fw)) / den
+            # a vertex that is outside, next to an end, or barely moves is not taken
+            if not (a + _XATOL < u < c - _XATOL) or abs(u - x) < 0.5 * _XATOL:
+                u = None
+        if u is None:
+            u = x + _GOLD * (c - x) if c - x > x - a else x - _GOLD * (x - a)
+        fu = fun(u)
+        if fu <= fx:
+            if u < x:
+                c = x
+            else:
+                a = x
+            (v, fv), (w, fw), (x, fx) = (w, fw), (x, fx), (u, fu)
+        else:
+            if u < x:
+                a = u
+            else:
+                c = u
+            if fu <= fw or w == x:
+                (v, fv), (w, fw) = (w, fw), (u, fu)
+            elif fu <= fv or v == x or v == w:
+                v, fv = u, fu
+    return x, fx
+
+
+def _at_bound(fun, edge, inner) -> tuple[float, float]:
+    """A minimum next to a bound ``edge`` (x, f), with ``inner`` a point inside not lower: the
+    bound itself when the value rises within the tolerance from it (most often: a variance
+    component the residuals do not need, at its lower bound), else the bounded search
+    between the two."""
+    x, fx = edge
+    u = x + np.sign(inner[0] - x) * _XATOL
+    if fun(u) >= fx:
+        return edge
+    return _bounded(fun, min(x, inner[0]), max(x, inner[0]), edge)
+
+
+def _bounded(fun, lo: float, hi: float, best) -> tuple[float, float]:
+    r = minimize_scalar(fun, bounds=(lo, hi), method="bounded", options={"xatol": _XATOL})
+    return min(best, (float(r.x), float(r.fun)), key=lambda t: t[1])
 
 
 def _upper(f: _Reml, phi: np.ndarray, i: int, dev: float, log_v0: float) -> float:

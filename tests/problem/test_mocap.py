@@ -238,6 +238,7 @@ def test_a_thin_cylinder_under_range_noise_is_tied_by_each_points_range_along_it
     centimetres off outside its region; the range along each ray (the default) holds the truth
     in its region about as often as it says."""
     from rigcal.geometry.se3 import se3_log
+    from rigcal.problem.consistency import mocap_verdict
     from rigcal.problem.mocap import calibrate_mocap_fit
 
     sensor = [MocapSensor("lidar1", SensorKind.LIDAR, sigma=0.01)]
@@ -249,6 +250,12 @@ def test_a_thin_cylinder_under_range_noise_is_tied_by_each_points_range_along_it
             est = fit.result.sensors["lidar1"]
             e = se3_log(invert(est.T_reference_sensor) @ truth)
             out[ranges].append((np.linalg.norm(e[3:]), float(e @ np.linalg.solve(est.covariance, e))))
+            f = fit.sensors["lidar1"]
+            if ranges:  # the tube it ranged, for the verdict's thin-tube note (15 mm on 56.4 mm)
+                assert f.curved_target == "cylinder" and f.curved_radius_m == pytest.approx(0.0564)
+                assert "thin" in {c.name for c in mocap_verdict(fit).checks}
+            else:
+                assert f.curved_target == "" and np.isnan(f.curved_radius_m)
     ray, surf = np.array(out[True]), np.array(out[False])
     inside_ray, inside_surf = np.mean(ray[:, 1] <= 12.59), np.mean(surf[:, 1] <= 12.59)
     assert inside_ray >= 4 / 6, ray

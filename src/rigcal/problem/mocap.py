@@ -636,6 +636,11 @@ class MocapSensorFit:
     #: variance) its 95 % region was made for that (1: not at all)
     noise_dof: float = float("inf")
     region_widening: float = 1.0
+    #: the thinnest curved target (the cylinder) whose points this lidar's fit ties by their
+    #: range along the ray, and its radius [m] ("" and NaN: none) - against the lidar's range
+    #: noise it says whether the linearised covariance holds (the verdict's ``thin`` note)
+    curved_target: str = ""
+    curved_radius_m: float = float("nan")
 
     @property
     def match_fraction(self) -> float:
@@ -1398,6 +1403,7 @@ def calibrate_mocap_fit(
                     sensor=s.name)
     estimates, rmse, reproj, fits = {}, {}, {}, {}
     matches = _matches(prob, sol, sensors, shifted, whitened)
+    thinnest = _thinnest_ranged(shifted, surfaces, edges)
     for s in sensors:
         st = stats[s.name]
         cov = joint([s.name])
@@ -1437,6 +1443,8 @@ def calibrate_mocap_fit(
             time_offset_status=_offset_status(s.name in offsets, st.offset_std, st.offset_effect, options),
             views=distinct_holds(own, [h for h, o in zip(holds, shifted) if o.sensor == s.name]),
             noise_dof=st.dof, region_widening=st.widening,
+            curved_target=thinnest.get(s.name, ("", float("nan")))[0],
+            curved_radius_m=thinnest.get(s.name, ("", float("nan")))[1],
         )
     noise_model = {}
     for s in sensors:
@@ -1464,6 +1472,21 @@ def calibrate_mocap_fit(
         relative=relative_estimates([s.name for s in sensors], poses, joint),
     )
     return MocapFit(result=result, sensors=fits, observations=tuple(shifted))
+
+
+def _thinnest_ranged(observations, surfaces, edges) -> dict[str, tuple[str, float]]:
+    """Per sensor, the curved target of smallest radius that some of its points are tied to by
+    their range along the ray (:func:`_edge_selection`'s range mask), and that radius."""
+    out: dict[str, tuple[str, float]] = {}
+    for i, sel in (edges or {}).items():
+        on_ray = sel[3]
+        if on_ray is None or not np.any(on_ray):
+            continue
+        o = observations[i]
+        radius = surfaces[o.target].ray_radius_m
+        if o.sensor not in out or radius < out[o.sensor][1]:
+            out[o.sensor] = (o.target, radius)
+    return out
 
 
 def measured_residuals(obs: TargetObservation, sensor: MocapSensor, T_robot_sensor: np.ndarray,

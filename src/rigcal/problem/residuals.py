@@ -40,7 +40,8 @@ On a curved surface (a ``surface`` whose ``ray_range`` gives the range to the hi
 gradients: the cylinder's tube, ``ds = -n . (do + s dw) / (n . w)`` with the normal ``n`` at
 the hit) the range is the same residual with the hit found on that surface: the closest point of a
 measured point is worse there than on a plane - its range noise across a thin tube makes the
-tube look fatter (about sigma^2 / (2 radius): 4 mm for a VLP-16 on a 56 mm tube).
+tube look fatter (about sigma^2 / (2 radius): 2 mm for a VLP-16's 15 mm on the paper's 56.4 mm
+radius).
 
 Where a scanning lidar's ring leaves a plate (``MODEL_RAY_EDGE``) the edge lies between the last
 ray that returned from the plate and the next ray of the ring, which did not: with both rays'

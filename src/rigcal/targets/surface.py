@@ -290,6 +290,11 @@ class TargetSurface:
         """A curved analytic surface that answers :meth:`ray_range` (the cylinder)."""
         return self._ray is not None
 
+    @property
+    def ray_radius_m(self) -> float:
+        """The radius of a ``curved_ray`` surface (the cylinder's tube) [m]; NaN otherwise."""
+        return float(self._dims["radius_m"]) if self._ray is not None else float("nan")
+
     def ray_range(self, origins: Any, dirs: Any):
         """Where rays ``origins + s dirs`` (N, 3), unit ``dirs``, target frame, meet the
         cylinder's lateral surface: (N,) range ``s`` to the near hit, (N, 3) its gradients with

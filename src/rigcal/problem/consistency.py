@@ -537,8 +537,8 @@ def _thin_check(fit) -> Check | None:
     return Check("thin", NOTE, "range noise large against the radius of the cylinder it measures: "
                  + "; ".join(thin) + f" - above {MOCAP_THIN_TUBE:g} of the radius the tube's ranges "
                  "are too curved for the linearised covariance and its 95 % region can be too narrow "
-                 "(simulated, 4 holds: 0.875 of the truths inside at 0.27, 0.94 at 0.18); hold a flat target (the "
-                 "diamond) for this lidar, or a thicker cylinder")
+                 "(simulated, 4 holds: 0.875 of the truths inside at 0.27, 0.94 at 0.18); hold a "
+                 "flat target (the diamond) for this lidar, or a thicker cylinder")
 
 
 def _offset_check(fit) -> Check | None:

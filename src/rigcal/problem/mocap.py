@@ -1423,6 +1423,7 @@ def calibrate_mocap_fit(
         (reproj if s.kind == SensorKind.CAMERA else rmse)[f"{ROBOT}-{s.name}"] = value
         sigma = float(s.sigma * np.sqrt(st.s2))
         naive = st.naive
+        curved_target, curved_radius = thinnest.get(s.name, ("", float("nan")))
         fits[s.name] = MocapSensorFit(
             name=s.name, kind=s.kind, unit="px" if s.kind == SensorKind.CAMERA else "m",
             sigma_nominal=float(s.sigma), noise_sigma=sigma, reduced_chi2=float(st.s2),
@@ -1443,8 +1444,7 @@ def calibrate_mocap_fit(
             time_offset_status=_offset_status(s.name in offsets, st.offset_std, st.offset_effect, options),
             views=distinct_holds(own, [h for h, o in zip(holds, shifted) if o.sensor == s.name]),
             noise_dof=st.dof, region_widening=st.widening,
-            curved_target=thinnest.get(s.name, ("", float("nan")))[0],
-            curved_radius_m=thinnest.get(s.name, ("", float("nan")))[1],
+            curved_target=curved_target, curved_radius_m=curved_radius,
         )
     noise_model = {}
     for s in sensors:

@@ -321,8 +321,9 @@ def _chol_solve_stack(c: np.ndarray, b: np.ndarray) -> np.ndarray:
     return out
 
 
-def _log_diag(c: np.ndarray) -> np.ndarray:
-    return np.log(np.diagonal(c, axis1=-2, axis2=-1))
+def _diag(c: np.ndarray) -> np.ndarray:
+    """The diagonals (m, k) of a stack of matrices (m, k, k)."""
+    return np.diagonal(c, axis1=-2, axis2=-1)
 
 
 def _factor_solve(N: np.ndarray, P: int, rhs: np.ndarray) -> tuple[float, np.ndarray] | None:
@@ -342,7 +343,7 @@ def _factor_solve(N: np.ndarray, P: int, rhs: np.ndarray) -> tuple[float, np.nda
         cf = _chol_stack(N)
         if cf is None:
             return None
-        return 2.0 * float(np.sum(_log_diag(cf))), _chol_solve_stack(cf, rhs)
+        return 2.0 * float(np.sum(np.log(_diag(cf)))), _chol_solve_stack(cf, rhs)
     if not np.all(np.isfinite(N)):
         return None
     if P:
@@ -351,15 +352,15 @@ def _factor_solve(N: np.ndarray, P: int, rhs: np.ndarray) -> tuple[float, np.nda
             return None
         both = _chol_solve_stack(ca, np.concatenate([N[:, :P, P:], rhs[:, :P]], axis=2))
         AiB, y = both[:, :, :k - P], both[:, :, k - P:]
-        pa = np.diagonal(ca, axis1=-2, axis2=-1) ** 2
+        pa = _diag(ca) ** 2
     else:
         AiB, y, pa = np.zeros((m, 0, k)), rhs[:, :0], np.zeros((m, 0))
     BT = N[:, P:, :P]
     cs = _chol_stack(BT @ AiB - N[:, P:, P:])
     if cs is None:
         return None
-    pivots = np.concatenate([pa, np.diagonal(cs, axis1=-2, axis2=-1) ** 2], axis=1)
-    scale = np.maximum(np.abs(np.diagonal(N, axis1=-2, axis2=-1)).max(axis=1), 1e-300)
+    pivots = np.concatenate([pa, _diag(cs) ** 2], axis=1)
+    scale = np.maximum(np.abs(_diag(N)).max(axis=1), 1e-300)
     if not np.all(np.isfinite(pivots)) or np.any(pivots < 1e-12 * scale[:, None]):
         return None
     # the Schur complement is -C C': x_V = -(C C')^-1 (rhs_V - B' y)
@@ -504,9 +505,9 @@ _FIRST_STEP = 0.5
 def _line_min(fun, x0: float, f0: float, a: float, b: float) -> tuple[float, float]:
     """The minimum of ``fun`` over ``[a, b]`` near ``x0`` (where it is ``f0``): steps that double
     from ``x0`` downhill until the value rises bracket it (three points, the middle lowest),
-    then Brent's parabolic search from that bracket; a minimum at a bound by the bounded
-    search between the last two steps. (A bounded search over the whole range cost about twice
-    the evaluations: most sweeps start next to the optimum.)"""
+    then Brent's parabolic search from that bracket; downhill to a bound (or not lower on the
+    one side ``x0``'s bound leaves), :func:`_at_bound`. (A bounded search over the whole range
+    cost about twice the evaluations: most sweeps start next to the optimum.)"""
     side = []
     for d in (1.0, -1.0):
         x1 = min(max(x0 + d * _FIRST_STEP, a), b)

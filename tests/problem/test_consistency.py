@@ -199,9 +199,29 @@ def test_a_region_widened_for_few_holds_gets_a_note_with_the_holds_that_would_na
     # no per-hold error found in four holds: that many show one only when it is large
     s.components = {**s.components, "hold_m": 0.0, "hold_rad": 0.0, "view_affine_px": 0.0}
     c = next(c for c in mocap_verdict(f).checks if c.name == "holds")
-    assert "no per-hold error seen in camera1 (4) holds" in c.detail and "hold_sigma_floor" in c.detail
+    assert "no per-hold error seen in camera1 (4) holds (4 over the sensors together)" in c.detail
+    assert "hold_sigma_floor" in c.detail
     s.holds = 8
     assert not any(c.name == "holds" for c in mocap_verdict(f).checks)
+    # the MCS's per-hold error is looked for in every sensor's holds together: two sensors of
+    # four holds each show it as eight would
+    from types import SimpleNamespace
+
+    s.holds = 4
+    f.sensors["lidar1"] = SimpleNamespace(**{**vars(s), "name": "lidar1"})
+    assert not any(c.name == "holds" for c in mocap_verdict(f).checks)
+    f.sensors["lidar1"].holds = 3
+    c = next(c for c in mocap_verdict(f).checks if c.name == "holds")
+    assert "camera1 (4), lidar1 (3) holds (7 over the sensors together)" in c.detail
+
+
+def test_a_pooled_per_hold_error_is_said_to_be_the_mcs():
+    from rigcal.problem.consistency import mocap_error_text
+
+    f = _mocap_fit(0.55, 19).sensors["camera1"]
+    assert "pooled" not in mocap_error_text(f)
+    f.hold_pooled = True
+    assert "0.25 mm / 0.5 mrad per hold (the MCS's, pooled over the sensors' holds) (4 holds)" in mocap_error_text(f)
 
 
 def test_a_lidar_ranging_a_cylinder_thin_for_its_noise_gets_a_note():

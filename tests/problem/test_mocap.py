@@ -468,6 +468,112 @@ def test_reported_95_percent_regions_hold_the_truth():
         assert 0.8 < k["noise_ratio_median"] < 1.25
 
 
+def _spied_coverage(monkeypatch, *args, **kwargs):
+    """``mocap_coverage(*args, **kwargs)`` and every fit it made."""
+    from rigcal.problem import mocap as mocap_module
+    from rigcal.study.coverage import mocap_coverage
+
+    fits = []
+    real = mocap_module.calibrate_mocap_fit
+
+    def spy(*a, **k):
+        fits.append(real(*a, **k))
+        return fits[-1]
+
+    monkeypatch.setattr(mocap_module, "calibrate_mocap_fit", spy)
+    return mocap_coverage(*args, **kwargs), fits
+
+
+def test_the_mcs_per_hold_error_is_pooled_over_the_sensors_holds(monkeypatch):
+    """Four holds per sensor cannot show a 1 mm / 2 mrad per-hold MCS error on their own (2-3
+    degrees of freedom; the lidar's region held 0.85 of 40 sessions under ``hold_bias``, the
+    camera's 0.78 under ``mixed``); the same MCS's error in the lidar's and the camera's holds
+    together can (0.93 and 0.93 after, docs/mocap.md). A sensor whose own estimate is below the
+    pooled value takes it, as a least value."""
+    from rigcal.problem.consistency import mocap_verdict
+
+    r, fits = _spied_coverage(monkeypatch, 6, seed=0, holds=4, error_model="hold_bias")
+    assert r["failed"] == 0 and len(fits) == 6
+    pooled = [(fit, name, f) for fit in fits for name, f in fit.sensors.items() if f.hold_pooled]
+    assert len(pooled) >= 3  # a sensor whose own estimate is below the pooled one takes it
+    for fit, name, f in pooled:
+        # an estimate of the MCS's 1 mm / 2 mrad, its degrees of freedom from the holds of all
+        assert 0.3 < max(f.components["hold_m"] / 1e-3, f.components["hold_rad"] / 2e-3) < 3.0, f.components
+        text = next(c.detail for c in mocap_verdict(fit).checks if c.name == "errors")
+        assert f"{name} " in text and "the MCS's, pooled over the sensors' holds" in text
+
+
+def _noise_inputs(rng, holds, hold, extra=0.0, frames=3, points=10):
+    """One sensor's residuals with a per-hold error in rotation and translation (variance
+    ``hold`` each, plus ``extra`` of its own) and unit point noise."""
+    from rigcal.problem.mocap import _NoiseInputs
+
+    n = holds * frames * points * 2
+    X = rng.normal(size=(n, 6))
+    hold_of = np.repeat(np.arange(holds), frames * points * 2)
+    loads = {}
+    for c in ("hold_rot", "hold"):
+        base = rng.normal(size=(holds, frames * points * 2, 3))
+        U = np.zeros((n, 3 * holds))
+        for g in range(holds):
+            U[hold_of == g, 3 * g: 3 * g + 3] = base[g]
+        loads[c] = U
+    r = X @ rng.normal(size=6) + rng.normal(size=n)
+    for U in loads.values():
+        r = r + U @ rng.normal(0, np.sqrt(hold + extra), U.shape[1])
+    return _NoiseInputs(r, X, loads, {}, np.full(n, -1), np.zeros(n, dtype=bool), False)
+
+
+def test_the_pooled_per_hold_error_is_a_least_value_and_a_sensor_that_rejects_it_is_left_out():
+    from rigcal.problem.mocap import _components
+
+    rng = np.random.default_rng(33)
+    inputs = {f"s{k}": _noise_inputs(rng, 4, hold=0.5) for k in range(3)}
+    own = {n: i.fit() for n, i in inputs.items()}
+    comps = _components(inputs)
+    for n, c in comps.items():
+        for comp in ("hold_rot", "hold"):
+            # the pooled value where the sensor's own is below it (with the pooled degrees of
+            # freedom: all three sensors' holds), its own where above
+            if comp in c.fixed:
+                assert c.get(comp) > own[n].get(comp)
+                assert c.dof[comp] > 1.5 * own[n].dof[comp] and 0.2 < c.get(comp) < 1.0
+            else:
+                assert c.get(comp) == pytest.approx(own[n].get(comp), rel=0.05)  # re-estimated beside it
+    assert sum(len(c.fixed) for c in comps.values()) >= 2
+    # a fourth sensor with a far larger per-hold error of its own would drag the pooled value
+    # up until the others reject it: it is left out (keeps its own), the others pool as before
+    inputs["big"] = _noise_inputs(rng, 4, hold=0.5, extra=50.0)
+    with_big = _components(inputs)
+    assert not with_big["big"].fixed and with_big["big"].get("hold") > 5.0
+    for n in comps:
+        assert with_big[n].fixed == comps[n].fixed and with_big[n].values == comps[n].values
+    # one sensor alone: nothing to pool with
+    assert not _components({"s0": inputs["s0"]})["s0"].fixed
+
+
+def test_without_a_per_hold_error_nothing_is_pooled(monkeypatch):
+    r, fits = _spied_coverage(monkeypatch, 4, seed=0, holds=4, error_model="pixel")
+    assert r["failed"] == 0
+    assert sum(f.hold_pooled for fit in fits for f in fit.sensors.values()) <= 2
+
+
+@pytest.mark.slow
+def test_four_holds_per_sensor_hold_the_truth_under_every_per_hold_error():
+    """Issue 23, item 2 with four holds: the MCS's per-hold error pooled over the sensors
+    (measured on 40 ``mixed`` sessions: lidar 0.97 inside, median NEES per DOF 0.46, camera
+    0.93, 0.33 - wide where a sensor keeps its own per-hold estimate from four holds; before the
+    pooling 0.90 / 0.45 and 0.78 / 0.36)."""
+    from rigcal.study.coverage import mocap_coverage
+
+    r = mocap_coverage(20, seed=0, holds=4, error_model="mixed")
+    assert r["failed"] == 0 and r["checks"] == 40
+    for s in ("lidar", "camera"):
+        k = r["per_sensor"][s]
+        assert k["inside_6dof"] >= 0.85, (s, k)
+        assert k["nees_median"] >= 0.2, (s, k)  # wide, not absurdly
+
+
 def _err(T, T_true):
     dt = float(np.linalg.norm(T[:3, 3] - T_true[:3, 3]))
     dr = float(np.degrees(np.linalg.norm(so3_log(T_true[:3, :3].T @ T[:3, :3]))))

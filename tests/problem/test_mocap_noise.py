@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rigcal.problem.mocap_noise import Components, effective_dof, fit_components, sandwich, widening
+from rigcal.problem.mocap_noise import Components, effective_dof, fit_components, fit_shared, sandwich, widening
 
 
 def _design(rng, holds=8, frames=6, points=40):
@@ -69,6 +69,54 @@ def test_a_floor_is_a_known_least_value_not_an_estimate():
     r = _draw(rng, X, loads, groups, s2=1.0, cap=0.0, hold=0.0, view=0.0)
     c = fit_components(r, X, loads, floors={"capture": 3.0})
     assert c.get("capture") == 3.0 and c.floored["capture"] and c.dof["capture"] == np.inf
+
+
+def test_a_fixed_component_is_held_and_its_cost_is_the_deviance_difference():
+    rng = np.random.default_rng(21)
+    X, loads, groups = _design(rng, holds=4)
+    r = _draw(rng, X, loads, groups, s2=1.0, cap=0.0, hold=9.0, view=0.0)
+    free = fit_components(r, X, loads)
+    held = fit_components(r, X, loads, fixed={"hold": (9.0, 12.0)})
+    assert held.get("hold") == 9.0 and held.dof["hold"] == 12.0 and held.fixed == {"hold"}
+    assert free.fixed == frozenset() and held.deviance >= free.deviance - 1e-6
+    # a value the residuals exclude costs far more than the likelihood test's level
+    wrong = fit_components(r, X, loads, fixed={"hold": (1e-4, 12.0)})
+    assert wrong.deviance - free.deviance > 10.0
+
+
+def _sensors(rng, n, holds, hold, s2=1.0):
+    out = []
+    for _ in range(n):
+        X, loads, groups = _design(rng, holds=holds, frames=3, points=10)
+        loads = {"hold": loads["hold"]}
+        r = X @ rng.normal(size=6) + rng.normal(0, np.sqrt(s2), len(X))
+        r += loads["hold"] @ rng.normal(0, np.sqrt(hold), loads["hold"].shape[1])
+        out.append({"r": r, "X": X, "loadings": loads})
+    return out
+
+
+def test_a_per_hold_error_common_to_the_sensors_is_estimated_from_all_their_holds():
+    """Four holds each: one sensor's estimate rests on a few degrees of freedom (or is dropped),
+    the pooled one on all the sensors' holds together."""
+    rng = np.random.default_rng(22)
+    sensors = _sensors(rng, 4, holds=4, hold=4.0)
+    shared = fit_shared(sensors, names=("hold",))
+    own = [fit_components(s["r"], s["X"], s["loadings"]) for s in sensors]
+    assert shared.values["hold"] == pytest.approx(4.0, rel=0.6)
+    assert shared.dof["hold"] > max(o.dof["hold"] for o in own if o.get("hold") > 0)
+    assert shared.gain > 2.71 and shared.kept() == {"hold": (shared.values["hold"], shared.dof["hold"])}
+    # the sensors' own noise is each its own: a sensor twice as noisy keeps its s2
+    noisy = _sensors(rng, 1, holds=4, hold=4.0, s2=4.0)
+    both = fit_shared(sensors[:2] + noisy, names=("hold",))
+    assert both.values["hold"] == pytest.approx(4.0, rel=0.8)
+
+
+def test_no_common_per_hold_error_none_is_kept_and_one_sensor_is_not_pooled():
+    rng = np.random.default_rng(23)
+    kept = [fit_shared(_sensors(rng, 3, holds=4, hold=0.0), names=("hold",)).kept() for _ in range(10)]
+    assert sum(bool(k) for k in kept) <= 2  # the test's level: about 1 in 10 (two-sided boundary)
+    alone = fit_shared(_sensors(rng, 1, holds=4, hold=4.0), names=("hold",))
+    assert alone.values == {"hold": 0.0} and alone.gain == 0.0
 
 
 def test_sandwich_parts_add_up_and_the_prior_bounds_an_undetermined_effect():

@@ -472,7 +472,8 @@ def mocap_error_text(f) -> str:
     if c.get("jitter_s", 0.0) > 0:
         parts.append(f"{1000 * c['jitter_s']:.2g} ms stamp jitter")
     if c.get("hold_m", 0.0) > 0 or c.get("hold_rad", 0.0) > 0:
-        parts.append(f"{1000 * c.get('hold_m', 0.0):.2g} mm / {1000 * c.get('hold_rad', 0.0):.2g} mrad per hold")
+        parts.append(f"{1000 * c.get('hold_m', 0.0):.2g} mm / {1000 * c.get('hold_rad', 0.0):.2g} mrad per hold"
+                     + (" (the MCS's, pooled over the sensors' holds)" if getattr(f, "hold_pooled", False) else ""))
     return f"{f.name} " + ", ".join(parts) + f" ({f.holds} holds)"
 
 
@@ -491,9 +492,12 @@ def _few_holds_check(fit) -> Check | None:
     """The ``holds`` note: sensors whose error components (per hold) rest on so few holds that
     their 95 % region had to be widened by more than MOCAP_WIDENING_NOTE, with the holds that
     would bring it under that (the degrees of freedom grow about as the holds do); and sensors
-    with fewer than MOCAP_SURE_HOLDS holds and no per-hold error found, which so few holds
-    may have missed."""
+    with no per-hold error found when the sensors together have fewer than MOCAP_SURE_HOLDS
+    holds, which so few may have missed (the MCS's per-hold error is estimated from every
+    sensor's holds together: :func:`rigcal.problem.mocap._components`)."""
     wide, unseen = [], []
+    # the MCS's per-hold error is looked for in every sensor's holds together (pooled)
+    every = sum(f.holds for f in fit.sensors.values())
     for name, f in fit.sensors.items():
         k = float(getattr(f, "region_widening", 1.0))
         nu = float(getattr(f, "noise_dof", float("inf")))
@@ -502,7 +506,7 @@ def _few_holds_check(fit) -> Check | None:
             wide.append(f"{name} ({f.holds} holds, {nu:.1f} degrees of freedom: std x {np.sqrt(k):.1f}; "
                         f"about {more} more hold{'s' if more > 1 else ''} would bring it under "
                         f"x {np.sqrt(MOCAP_WIDENING_NOTE):.1f})")
-        elif f.holds < MOCAP_SURE_HOLDS and not any(
+        elif every < MOCAP_SURE_HOLDS and not any(
                 f.components.get(c, 0.0) > 0 for c in ("hold_m", "hold_rad", "view_affine_px")):
             unseen.append(f"{name} ({f.holds})")
     parts = []
@@ -510,9 +514,9 @@ def _few_holds_check(fit) -> Check | None:
         parts.append("error model estimated from few holds, 95 % region widened for it: " + "; ".join(wide)
                      + " - hold the target at other distances, places and tilts")
     if unseen:
-        parts.append(f"no per-hold error seen in {', '.join(unseen)} holds, but fewer than "
-                     f"{MOCAP_SURE_HOLDS} show the MCS's error of a still target only when it is large: "
-                     f"hold the target {MOCAP_SURE_HOLDS} times or more, or set "
+        parts.append(f"no per-hold error seen in {', '.join(unseen)} holds ({every} over the sensors together), "
+                     f"but fewer than {MOCAP_SURE_HOLDS} show the MCS's error of a still target only when it "
+                     f"is large: hold the targets {MOCAP_SURE_HOLDS} times or more in all, or set "
                      "options.hold_sigma_floor to the MCS's accuracy for a still body")
     return Check("holds", NOTE, "; ".join(parts)) if parts else None
 

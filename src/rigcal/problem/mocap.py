@@ -641,6 +641,10 @@ class MocapSensorFit:
     #: noise it says whether the linearised covariance holds (the verdict's ``thin`` note)
     curved_target: str = ""
     curved_radius_m: float = float("nan")
+    #: the per-hold error (``hold_m`` / ``hold_rad``) is the MCS's, estimated from the holds of
+    #: every sensor that agrees with it, not from this sensor's alone (its degrees of freedom
+    #: in ``components_dof`` are the pooled estimate's)
+    hold_pooled: bool = False
 
     @property
     def match_fraction(self) -> float:
@@ -1011,9 +1015,26 @@ class _SensorStats:
     widening: float = 1.0
 
 
-def _sensor_statistics(lin: _Linear, observations, holds, options: MocapOptions, edges=None) -> _SensorStats:
-    from rigcal.problem.mocap_noise import effective_dof, fit_components, sandwich, widening
+@dataclass(frozen=True)
+class _NoiseInputs:
+    """What one sensor's noise model is fitted from (:func:`rigcal.problem.mocap_noise.fit_components`'s
+    arguments) and whether its per-capture shape came from the MCS streams."""
 
+    r: np.ndarray
+    X: np.ndarray
+    loadings: dict
+    floors: dict
+    groups: np.ndarray
+    known: np.ndarray
+    streams: bool
+
+    def fit(self, fixed=None):
+        from rigcal.problem.mocap_noise import fit_components
+
+        return fit_components(self.r, self.X, self.loadings, self.floors, self.groups, self.known, fixed)
+
+
+def _noise_inputs(lin: _Linear, observations, holds, options: MocapOptions, edges=None) -> _NoiseInputs:
     loads, streams = _loadings(lin, observations, holds, edges)
     X = lin.Js if lin.j_offset is None else np.column_stack([lin.Js, lin.j_offset])
     floor_r, floor_t = options.hold_sigma_floor
@@ -1023,7 +1044,49 @@ def _sensor_statistics(lin: _Linear, observations, holds, options: MocapOptions,
     groups, view_pose = _view_groups(lin, observations, holds)
     if view_pose.shape[1]:
         loads["view_pose"] = view_pose
-    comp = fit_components(lin.r, X, loads, floors, groups, lin.known)
+    return _NoiseInputs(lin.r, X, loads, floors, groups, lin.known, streams)
+
+
+def _components(inputs: Mapping[str, _NoiseInputs]) -> dict:
+    """Every sensor's noise components: each fitted on its own, then the MCS's per-hold error
+    of a still target (``hold_rot``, ``hold``) estimated once from every sensor's holds
+    (:func:`rigcal.problem.mocap_noise.fit_shared`). The pooled value must agree with every
+    sensor's residuals: held at it, no sensor's fit may cost more than the likelihood test's
+    level over its own; else the sensor with the largest per-hold error of its own keeps its
+    own estimates and the value is pooled again over the others (its holds must not lend their
+    degrees of freedom to a value they contradict), until every sensor left agrees or fewer
+    than two are left. The MCS's error is part of every sensor's per-hold error, so the pooled
+    value is a least value: a sensor whose own estimate of a component is below it takes the
+    pooled value (and its degrees of freedom) for it; one whose own is larger (an error of its
+    own on top, a lidar's corner bias) keeps its own."""
+    from rigcal.problem.mocap_noise import LIKELIHOOD_RATIO, fit_shared
+
+    out = {name: inp.fit() for name, inp in inputs.items()}
+    members = list(inputs)
+    while len(members) >= 2:
+        kept = fit_shared([{"r": inputs[n].r, "X": inputs[n].X, "loadings": inputs[n].loadings,
+                            "groups": inputs[n].groups, "known": inputs[n].known} for n in members]).kept()
+        if not kept:
+            break
+        held = {n: inputs[n].fit(fixed=kept) for n in members}
+        if any(held[n].deviance - out[n].deviance > LIKELIHOOD_RATIO for n in members):
+            # the sensor with the largest per-hold error of its own is left out (an error of
+            # its own on top of the MCS's drags the pooled value up until the others reject it)
+            # and the value pooled again without it
+            members.remove(max(members, key=lambda n: sum(out[n].get(c) / v for c, (v, _) in kept.items())))
+            continue
+        for n in members:
+            below = {c: vd for c, vd in kept.items() if out[n].get(c) < vd[0]}
+            if below:
+                out[n] = held[n] if below == kept else inputs[n].fit(fixed=below)
+        break
+    return out
+
+
+def _sensor_statistics(lin: _Linear, inputs: _NoiseInputs, comp, observations, options: MocapOptions) -> _SensorStats:
+    from rigcal.problem.mocap_noise import effective_dof, sandwich, widening
+
+    X, loads, groups, streams = inputs.X, inputs.loadings, inputs.groups, inputs.streams
     prior = None
     if lin.j_offset is not None:
         prior = np.r_[np.zeros(6), 1.0 / options.time_offset_sigma_s]
@@ -1072,10 +1135,12 @@ def _statistics(prob: Problem, sol, sensors, observations, holds, options: Mocap
     function giving the joint covariance of a list of sensors."""
     r, J, layout, row_obs, row_sensor, row_known = _rows(prob, sol)
     stats: dict[str, _SensorStats] = {}
+    lins = {s.name: _linearise(r, J, layout, row_obs, row_sensor, row_known, s.name, sol.poses[s.name],
+                               observations, offsets.get(s.name, False)) for s in sensors}
+    inputs = {name: _noise_inputs(lin, observations, holds, options, edges) for name, lin in lins.items()}
+    comps = _components(inputs)
     for s in sensors:
-        lin = _linearise(r, J, layout, row_obs, row_sensor, row_known, s.name, sol.poses[s.name], observations,
-                         offsets.get(s.name, False))
-        st = _sensor_statistics(lin, observations, holds, options, edges)
+        st = _sensor_statistics(lins[s.name], inputs[s.name], comps[s.name], observations, options)
         st.naive = sol.pose_covariance(s.name)
         stats[s.name] = st
     coupled = any(p.free != (False,) * 6 for p in prob.poses if p.name.startswith("target:")) \
@@ -1445,6 +1510,7 @@ def calibrate_mocap_fit(
             views=distinct_holds(own, [h for h, o in zip(holds, shifted) if o.sensor == s.name]),
             noise_dof=st.dof, region_widening=st.widening,
             curved_target=curved_target, curved_radius_m=curved_radius,
+            hold_pooled=bool(st.comp.fixed),
         )
     noise_model = {}
     for s in sensors:

@@ -32,7 +32,10 @@ likelihood (REML: the likelihood of the residuals with the fixed effects project
 the low-dimensional space the random effects span (Woodbury), so it costs little even for
 thousands of lidar points. A component estimated from few groups (four holds) is uncertain:
 its degrees of freedom come from the REML curvature, and :func:`sandwich` widens its part of
-the covariance so that a 6-DOF region holds the truth as often as it says.
+the covariance so that a 6-DOF region holds the truth as often as it says. The MCS's part of
+the per-hold error is one MCS's in every sensor's holds: :func:`fit_shared` estimates it from
+all of them together, and :func:`fit_components` holds a component at such a value
+(``fixed``) while it estimates the others.
 
 The estimate itself is the least-squares one the solver returns; its covariance is the
 sandwich ``A^-1 (X' V X / s2 + P) A^-1`` with ``A = X' X / s2 + P``, where ``P`` is the prior
@@ -43,14 +46,15 @@ tell from the pose widens the pose's covariance instead of hiding in it.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Mapping
+from typing import Mapping, Sequence
 
 import numpy as np
 from scipy.linalg.lapack import dpotrf, dpotrs
 from scipy.optimize import minimize, minimize_scalar
 from scipy.stats import chi2, f as f_dist
 
-__all__ = ["COMPONENTS", "Components", "effective_dof", "fit_components", "sandwich", "widening"]
+__all__ = ["COMPONENTS", "Components", "SHARED", "Shared", "effective_dof", "fit_components", "fit_shared",
+           "sandwich", "widening"]
 
 #: the random effects besides the per-point noise, in the order of the parameters
 COMPONENTS = ("capture", "jitter", "hold_rot", "hold", "view_affine", "edge")
@@ -90,6 +94,11 @@ class Components:
     #: covariance of the logs of the estimated variances (``"point"`` and every component kept
     #: and not floored), from the REML curvature: how uncertain the noise model is
     log_cov: Mapping[tuple[str, str], float] = None  # type: ignore[assignment]
+    #: -2 log REML at the estimate (compare fits of the same residuals: nested models)
+    deviance: float = float("nan")
+    #: components held at a value estimated elsewhere (:func:`fit_shared`), not from these
+    #: residuals alone
+    fixed: frozenset = frozenset()
 
     def get(self, name: str) -> float:
         return float(self.values.get(name, 0.0))
@@ -370,7 +379,8 @@ def _factor_solve(N: np.ndarray, P: int, rhs: np.ndarray) -> tuple[float, np.nda
 
 def fit_components(r: np.ndarray, X: np.ndarray, loadings: Mapping[str, np.ndarray],
                    floors: Mapping[str, float] | None = None, groups: np.ndarray | None = None,
-                   known: np.ndarray | None = None) -> Components:
+                   known: np.ndarray | None = None,
+                   fixed: Mapping[str, tuple[float, float]] | None = None) -> Components:
     """REML estimates of the variance components of one sensor's whitened residuals ``r``
     (n,) with fixed effects ``X`` (n, p) and random-effect loadings ``loadings[c]`` (n, k_c)
     for ``c`` in :data:`COMPONENTS` (missing or empty: not in the model), and ``groups`` (n,):
@@ -379,7 +389,10 @@ def fit_components(r: np.ndarray, X: np.ndarray, loadings: Mapping[str, np.ndarr
     least value a component may take (a known lower bound: the MCS's own scatter); the
     estimate is raised to it and its dof set to ``inf`` (a floor is not an estimate).
     ``known`` (n,) bool: rows whose own variance is known (1, whitened: a lidar ring's end,
-    whose std is the scan's step) - they share the random effects but not ``s2``."""
+    whose std is the scan's step) - they share the random effects but not ``s2``.
+    ``fixed[c] = (value, dof)``: component ``c`` held at ``value`` (estimated elsewhere with
+    ``dof`` degrees of freedom: the per-hold error of an MCS pooled over the sensors,
+    :func:`fit_shared`) while the others are estimated around it."""
     r = np.asarray(r, dtype=float)
     n = len(r)
     floors = dict(floors or {})
@@ -391,6 +404,15 @@ def fit_components(r: np.ndarray, X: np.ndarray, loadings: Mapping[str, np.ndarr
         groups = np.full(n, -1)
     lo = np.log(v0) + np.r_[-30.0, np.full(m, -30.0)]
     hi = np.log(v0) + np.r_[5.0, np.full(m, 12.0)]
+    # held components: their bounds collapsed onto the value (zero: the lower bound)
+    fixed = {c: (float(v), float(d)) for c, (v, d) in (fixed or {}).items() if c in f.names}
+    held = frozenset(f.names.index(c) + 1 for c in fixed)
+    for c, (v, _) in fixed.items():
+        i = f.names.index(c) + 1
+        if v > 0:
+            lo[i] = hi[i] = float(np.clip(np.log(v * f.unit[i - 1]), lo[i], hi[i]))
+        else:
+            hi[i] = lo[i]
 
     def fit(off: frozenset[int], starts):
         """The REML optimum with the components ``off`` held at zero (their lower bound): from
@@ -434,7 +456,8 @@ def fit_components(r: np.ndarray, X: np.ndarray, loadings: Mapping[str, np.ndarr
     family_ref: dict[str, float] = {}
     phi, dev = fit(off, [np.log(v0) + np.r_[0.0, np.full(m, start)] for start in (0.5, -3.0)])
     while True:
-        live = [i for i in range(1, m + 1) if i not in off and phi[i] > np.log(v0) - 12.0]
+        live = [i for i in range(1, m + 1)
+                if i not in off and i not in held and phi[i] > np.log(v0) - 12.0]
         trials = sorted(((fit(off | {i}, [phi]), i) for i in live), key=lambda t: t[0][1])
         chosen = None
         for (phi_d, dev_d), i in trials:
@@ -458,6 +481,7 @@ def fit_components(r: np.ndarray, X: np.ndarray, loadings: Mapping[str, np.ndarr
     # a component at (next to) its lower bound is zero: it explains nothing
     values = {c: (0.0 if i + 1 in off or phi[i + 1] <= np.log(v0) - 12.0 else float(v))
               for i, (c, v) in enumerate(zip(f.names, th))}
+    values.update({c: v for c, (v, _) in fixed.items()})
     # ... but zero is only what the data cannot tell from zero: a component estimated from many
     # groups (every keypoint of every hold, every capture) takes the largest value the data
     # do not exclude (-2 log L within UPPER_DEVIANCE of its optimum), a bound it knows tightly
@@ -466,7 +490,8 @@ def fit_components(r: np.ndarray, X: np.ndarray, loadings: Mapping[str, np.ndarr
     # var(log theta_c) = 2 [H^-1]_cc, dof = 2 / var. A component estimated at (next to) zero
     # contributes nothing: its dof do not matter (inf)
     dof = {c: float("inf") for c in f.names}
-    live = [i for i in range(1, m + 1) if i not in off and phi[i] > np.log(v0) - 12.0]
+    live = [i for i in range(1, m + 1)
+            if i not in off and i not in held and phi[i] > np.log(v0) - 12.0]
     idx = [0] + live
     H = _hessian(f, phi, idx)
     try:
@@ -484,6 +509,8 @@ def fit_components(r: np.ndarray, X: np.ndarray, loadings: Mapping[str, np.ndarr
     for i in bounded:
         values[f.names[i]] = _upper(f, phi, i + 1, dev, np.log(v0))
         dof[f.names[i]] = float("inf")  # a bound, not an estimate
+    for c, (v, d) in fixed.items():
+        dof[c] = d if v > 0 else float("inf")
     floored = {}
     for c in (*COMPONENTS, VIEW):
         low = float(floors.get(c, 0.0))
@@ -494,7 +521,165 @@ def fit_components(r: np.ndarray, X: np.ndarray, loadings: Mapping[str, np.ndarr
             log_cov = {k: v for k, v in log_cov.items() if c not in k}
         elif c not in values and low > 0:
             values[c] = low
-    return Components(s2=s2, values=values, dof=dof, floored=floored, log_cov=log_cov)
+    return Components(s2=s2, values=values, dof=dof, floored=floored, log_cov=log_cov,
+                      deviance=float(dev), fixed=frozenset(fixed))
+
+
+#: the per-hold components an MCS's error of a still target loads (rotation [rad^2],
+#: translation [m^2] of the target's pose): the same MCS in every sensor's holds
+SHARED = ("hold_rot", "hold")
+
+
+@dataclass(frozen=True)
+class Shared:
+    """Variance components common to several sensors' residuals (:func:`fit_shared`):
+    ``values[c]`` (0: not needed), ``dof[c]`` (from the joint REML curvature) and ``gain``
+    (-2 log L the components gain over none of them)."""
+
+    values: Mapping[str, float]
+    dof: Mapping[str, float]
+    gain: float
+
+    def kept(self) -> dict[str, tuple[float, float]]:
+        return {c: (v, self.dof[c]) for c, v in self.values.items() if v > 0}
+
+
+def fit_shared(sensors: Sequence[Mapping], names: Sequence[str] = SHARED) -> Shared:
+    """REML estimates of the components ``names`` as **one** variance common to every sensor in
+    ``sensors`` (each a mapping with ``r``, ``X``, ``loadings`` and optionally ``groups``,
+    ``known``: the arguments of :func:`fit_components`), each sensor's other components its own.
+    The MCS's error of a still target is the same MCS's in every sensor's holds: four holds per
+    sensor cannot show it (2-3 degrees of freedom), the holds of several sensors together can.
+    The loadings must be in the same units for every sensor (the target's pose perturbation).
+    A sensor's residuals are independent of another's given the components, so -2 log REML is
+    the sum of the sensors'. The shared components are kept when dropping them costs more than
+    LIKELIHOOD_RATIO (as a family, as in :func:`fit_components`). With fewer than two sensors
+    that load them, nothing is estimated (every value 0)."""
+    names = tuple(names)
+    fs, los, his, v0s = [], [], [], []
+    for s in sensors:
+        f = _Reml(np.asarray(s["r"], dtype=float), s["X"], s["loadings"], s.get("groups"), s.get("known"))
+        if not all(c in f.names for c in names):
+            continue
+        n_resid = max(f.n - f.n_known - f.p, 1)
+        v0 = max(float(f.YY[-1, -1]) / n_resid, 1e-300)
+        m = len(f.names)
+        fs.append(f)
+        v0s.append(v0)
+        los.append(np.log(v0) + np.r_[-30.0, np.full(m, -30.0)])
+        his.append(np.log(v0) + np.r_[5.0, np.full(m, 12.0)])
+    none = Shared({c: 0.0 for c in names}, {c: float("inf") for c in names}, 0.0)
+    if len(fs) < 2:
+        return none
+    k = len(names)
+    pos = [[f.names.index(c) + 1 for c in names] for f in fs]
+    logunit = [np.log([f.unit[i - 1] for i in p]) for f, p in zip(fs, pos)]
+    own = [[i for i in range(len(f.names) + 1) if i not in p] for f, p in zip(fs, pos)]
+    # the shared log variances' range: every sensor's, in the common units
+    s_lo = np.min([lo[p] - u for lo, p, u in zip(los, pos, logunit)], axis=0)
+    s_hi = np.max([hi[p] - u for hi, p, u in zip(his, pos, logunit)], axis=0)
+    zero = np.array([min(np.log(v0) - 12.0 - u[j] for v0, u in zip(v0s, logunit)) for j in range(k)])
+
+    def full(j: int, psi: np.ndarray, phi: np.ndarray) -> np.ndarray:
+        x = phi.copy()
+        x[pos[j]] = np.clip(psi + logunit[j], los[j][pos[j]], his[j][pos[j]])
+        return x
+
+    def fit(off: frozenset[int], psi: np.ndarray, phis: list[np.ndarray]):
+        """Coordinate sweeps: each sensor's own parameters against its own likelihood, the
+        shared ones against the sum."""
+        psi = np.where([j in off for j in range(k)], s_lo, np.clip(psi, s_lo, s_hi))
+        phis = [p.copy() for p in phis]
+        parts = [f(full(j, psi, p)) for j, (f, p) in enumerate(zip(fs, phis))]
+        for _ in range(3 * _SWEEPS):
+            before = sum(parts)
+            for j, f in enumerate(fs):
+                for i in own[j]:
+                    def along(v, j=j, i=i):
+                        y = phis[j].copy()
+                        y[i] = v
+                        return f(full(j, psi, y))
+
+                    v, fv = _line_min(along, phis[j][i], parts[j], los[j][i], his[j][i])
+                    if fv < parts[j]:
+                        phis[j][i], parts[j] = v, fv
+            for c in range(k):
+                if c in off:
+                    continue
+
+                def total(v, c=c):
+                    y = psi.copy()
+                    y[c] = v
+                    return sum(f(full(j, y, p)) for j, (f, p) in enumerate(zip(fs, phis)))
+
+                v, fv = _line_min(total, psi[c], sum(parts), s_lo[c], s_hi[c])
+                if fv < sum(parts):
+                    psi[c] = v
+                    parts = [f(full(j, psi, p)) for j, (f, p) in enumerate(zip(fs, phis))]
+            if before - sum(parts) < _SWEEP_GAIN:
+                break
+        return psi, phis, float(sum(parts))
+
+    # start: each sensor's own parameters at a common guess, the shared ones where the sensors'
+    # residual variance puts them
+    phis0 = [np.log(v0) + np.r_[0.0, np.full(len(f.names), -3.0)] for f, v0 in zip(fs, v0s)]
+    psi0 = np.mean([np.log(v0) - 3.0 - u for v0, u in zip(v0s, logunit)], axis=0)
+    psi, phis, dev = fit(frozenset(), psi0, phis0)
+    base_psi, base_phis, base_dev = fit(frozenset(range(k)), psi, phis)
+    # backward elimination as in fit_components: one of the two dropped when it costs little
+    # while the other takes over; the last against the deviance with both (the family's test)
+    full_dev = dev
+    off: frozenset[int] = frozenset()
+    while True:
+        live = [c for c in range(k) if c not in off and psi[c] > zero[c]]
+        if not live:
+            break
+        if len(live) > 1:
+            trials = [(fit(off | {c}, psi, phis), c) for c in live]
+            (psi_d, phis_d, dev_d), c = min(trials, key=lambda t: t[0][2])
+            if dev_d - dev > LIKELIHOOD_RATIO:
+                break
+        else:
+            if base_dev - full_dev > LIKELIHOOD_RATIO:
+                break
+            (psi_d, phis_d, dev_d), c = (base_psi, base_phis, base_dev), live[0]
+        off = off | {c}
+        psi, phis, dev = psi_d, phis_d, dev_d
+    live = [c for c in range(k) if c not in off and psi[c] > zero[c]]
+    if not live:
+        return none
+    # degrees of freedom: the joint curvature of -2 log L in the shared log variances and every
+    # sensor's own live parameters (block by sensor: the sensors share only the shared ones)
+    own_live = [[i for i in own[j] if i == 0 or phis[j][i] > np.log(v0s[j]) - 12.0] for j in range(len(fs))]
+    size = len(live) + sum(len(o) for o in own_live)
+    H = np.zeros((size, size))
+    at = len(live)
+    for j, f in enumerate(fs):
+        idx = list(range(len(live))) + list(range(at, at + len(own_live[j])))
+
+        def sub(x, j=j):
+            y = psi.copy()
+            y[live] = x[:len(live)]
+            z = phis[j].copy()
+            z[own_live[j]] = x[len(live):]
+            return fs[j](full(j, y, z))
+
+        x0 = np.r_[psi[live], phis[j][own_live[j]]]
+        H[np.ix_(idx, idx)] += _hessian(sub, x0, list(range(len(x0))))
+        at += len(own_live[j])
+    try:
+        Hi = np.linalg.inv(H)
+        if not np.all(np.isfinite(Hi)) or np.any(np.diag(Hi)[:len(live)] <= 0):
+            raise np.linalg.LinAlgError
+        var = 2.0 * np.diag(Hi)[:len(live)]
+    except np.linalg.LinAlgError:
+        var = 2.0 / np.maximum(np.diag(H)[:len(live)], 1e-12)
+    values = {c: 0.0 for c in names}
+    dof = {c: float("inf") for c in names}
+    for a, c in enumerate(live):
+        values[names[c]] = float(np.exp(psi[c]))
+        dof[names[c]] = float(2.0 / var[a])
+    return Shared(values, dof, float(base_dev - dev))
 
 
 #: the line search's tolerance in a log variance, and its first step

@@ -449,6 +449,7 @@ def test_hold_correlated_errors_widen_the_covariance():
     assert 0.25 < max(f.hold_sigma[0] / 0.002, f.hold_sigma[1] / 0.001) < 2.5
 
 
+@pytest.mark.slow  # 20 sessions of eight holds: about 2 minutes (CI runs it)
 def test_reported_95_percent_regions_hold_the_truth():
     """Issue 23, item 2: sessions with a per-hold MCS error (1 mm / 2 mrad) and per-corner
     biases, eight holds per sensor: the regions hold the truth as often as they say and are not

@@ -377,6 +377,17 @@ def _factor_solve(N: np.ndarray, P: int, rhs: np.ndarray) -> tuple[float, np.nda
     return float(np.sum(np.log(pivots))), np.concatenate([y - AiB @ xv, xv], axis=1)
 
 
+def _search_box(f: _Reml) -> tuple[float, float, np.ndarray, np.ndarray]:
+    """The residuals' degrees of freedom and variance ``v0`` (fixed effects projected out), and
+    the bounds of the log parameters searched (``[log s2, log theta...]`` around ``v0``)."""
+    dof_resid = max(f.n - f.n_known - f.p, 1)
+    v0 = max(float(f.YY[-1, -1]) / dof_resid, 1e-300)
+    m = len(f.names)
+    lo = np.log(v0) + np.r_[-30.0, np.full(m, -30.0)]
+    hi = np.log(v0) + np.r_[5.0, np.full(m, 12.0)]
+    return dof_resid, v0, lo, hi
+
+
 def fit_components(r: np.ndarray, X: np.ndarray, loadings: Mapping[str, np.ndarray],
                    floors: Mapping[str, float] | None = None, groups: np.ndarray | None = None,
                    known: np.ndarray | None = None,
@@ -397,13 +408,10 @@ def fit_components(r: np.ndarray, X: np.ndarray, loadings: Mapping[str, np.ndarr
     n = len(r)
     floors = dict(floors or {})
     f = _Reml(r, X, loadings, groups, known)
-    dof_resid = max(n - f.n_known - f.p, 1)
-    v0 = max(float(f.YY[-1, -1]) / dof_resid, 1e-300)
+    dof_resid, v0, lo, hi = _search_box(f)
     m = len(f.names)
     if groups is None:
         groups = np.full(n, -1)
-    lo = np.log(v0) + np.r_[-30.0, np.full(m, -30.0)]
-    hi = np.log(v0) + np.r_[5.0, np.full(m, 12.0)]
     # held components: their bounds collapsed onto the value (zero: the lower bound)
     fixed = {c: (float(v), float(d)) for c, (v, d) in (fixed or {}).items() if c in f.names}
     held = frozenset(f.names.index(c) + 1 for c in fixed)
@@ -561,13 +569,11 @@ def fit_shared(sensors: Sequence[Mapping], names: Sequence[str] = SHARED) -> Sha
         f = _Reml(np.asarray(s["r"], dtype=float), s["X"], s["loadings"], s.get("groups"), s.get("known"))
         if not all(c in f.names for c in names):
             continue
-        n_resid = max(f.n - f.n_known - f.p, 1)
-        v0 = max(float(f.YY[-1, -1]) / n_resid, 1e-300)
-        m = len(f.names)
+        _, v0, lo, hi = _search_box(f)
         fs.append(f)
         v0s.append(v0)
-        los.append(np.log(v0) + np.r_[-30.0, np.full(m, -30.0)])
-        his.append(np.log(v0) + np.r_[5.0, np.full(m, 12.0)])
+        los.append(lo)
+        his.append(hi)
     none = Shared({c: 0.0 for c in names}, {c: float("inf") for c in names}, 0.0)
     if len(fs) < 2:
         return none

@@ -330,6 +330,20 @@ def _chol_solve_stack(c: np.ndarray, b: np.ndarray) -> np.ndarray:
     return out
 
 
+def _inverse_curvature(H: np.ndarray, checked: int | None = None) -> np.ndarray:
+    """The inverse of -2 log L's curvature ``H`` in the log parameters; where it is not finite or
+    not positive on the diagonal (its first ``checked`` entries; all when None), the inverse of
+    ``H``'s diagonal instead (each parameter as if alone)."""
+    try:
+        Hi = np.linalg.inv(H)
+        d = np.diag(Hi) if checked is None else np.diag(Hi)[:checked]
+        if not np.all(np.isfinite(Hi)) or np.any(d <= 0):
+            raise np.linalg.LinAlgError
+    except np.linalg.LinAlgError:
+        Hi = np.diag(1.0 / np.maximum(np.diag(H), 1e-12))
+    return Hi
+
+
 def _diag(c: np.ndarray) -> np.ndarray:
     """The diagonals (m, k) of a stack of matrices (m, k, k)."""
     return np.diagonal(c, axis1=-2, axis2=-1)
@@ -501,13 +515,7 @@ def fit_components(r: np.ndarray, X: np.ndarray, loadings: Mapping[str, np.ndarr
     live = [i for i in range(1, m + 1)
             if i not in off and i not in held and phi[i] > np.log(v0) - 12.0]
     idx = [0] + live
-    H = _hessian(f, phi, idx)
-    try:
-        Hi = np.linalg.inv(H)
-        if not np.all(np.isfinite(Hi)) or np.any(np.diag(Hi) <= 0):
-            raise np.linalg.LinAlgError
-    except np.linalg.LinAlgError:
-        Hi = np.diag(1.0 / np.maximum(np.diag(H), 1e-12))
+    Hi = _inverse_curvature(_hessian(f, phi, idx))
     labels = ["point"] + [f.names[i - 1] for i in live]
     log_cov = {(a, b): float(2.0 * Hi[ia, ib]) for ia, a in enumerate(labels) for ib, b in enumerate(labels)}
     for k, i in enumerate(idx[1:], start=1):
@@ -673,13 +681,7 @@ def fit_shared(sensors: Sequence[Mapping], names: Sequence[str] = SHARED) -> Sha
         x0 = np.r_[psi[live], phis[j][own_live[j]]]
         H[np.ix_(idx, idx)] += _hessian(sub, x0, list(range(len(x0))))
         at += len(own_live[j])
-    try:
-        Hi = np.linalg.inv(H)
-        if not np.all(np.isfinite(Hi)) or np.any(np.diag(Hi)[:len(live)] <= 0):
-            raise np.linalg.LinAlgError
-        var = 2.0 * np.diag(Hi)[:len(live)]
-    except np.linalg.LinAlgError:
-        var = 2.0 / np.maximum(np.diag(H)[:len(live)], 1e-12)
+    var = 2.0 * np.diag(_inverse_curvature(H, checked=len(live)))[:len(live)]
     values = {c: 0.0 for c in names}
     dof = {c: float("inf") for c in names}
     for a, c in enumerate(live):

@@ -19,18 +19,23 @@ there is 0.90 - 0.98 inside and a median NEES per degree of freedom within 0.5 -
 kind.
 Usage: python benchmarks/coverage.py [--trials N] [--seed S] [--modes mcpe,fcpe,pse] [--priors both|off|only]
        [--mocap-trials N] [--mocap-models pixel,...] [--mocap-holds N] [--mocap-hold-floor R,T]
-       (--trials 0: mocap only)
+       [--mocap-json PATH] (--trials 0: mocap only)
+Each motion-capture fraction is also printed as a count with its 95 % Wilson interval: what that
+many sessions can tell of the coverage.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import math
 import platform
 import sys
 import time
 
 from threadpoolctl import threadpool_limits
 
+from rigcal.io.atomic import atomic_write_text
 from rigcal.study.board_coverage import PriorSpec, board_coverage
 from rigcal.study.coverage import ERROR_MODELS
 
@@ -51,6 +56,27 @@ def _floor(text: str) -> tuple[float, float]:
     return r, t
 
 
+def _count(v: dict) -> str:
+    """How many truths of how many lie inside, and the fraction's 95 % Wilson interval: what a
+    sample of this size can tell of the coverage."""
+    n = int(v["checks"])
+    k = round(v["inside_6dof"] * n) if n else 0
+    if not n:
+        return "0 of 0"
+    z = 1.959964
+    mid = (k + z * z / 2) / (n + z * z)
+    half = z * math.sqrt(k * (n - k) / n + z * z / 4) / (n + z * z)
+    return f"{k} of {n}, 95 % interval {mid - half:.3f}-{mid + half:.3f}"
+
+
+def _offsets(v: dict) -> str:
+    """The clock offsets told from the pose: how many, and the largest error among them."""
+    if not v["offsets_determined"]:
+        return "none determined"
+    return (f"{v['offsets_determined']} determined, the largest error "
+            f"{1000 * v['offset_error_max_s']:.2f} ms")
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--trials", type=int, default=60)
@@ -65,6 +91,9 @@ def main() -> int:
     ap.add_argument("--mocap-hold-floor", default="0,0", type=_floor,
                     help="motion capture: the MCS's per-hold accuracy the calibration is told, "
                          "rotation_rad,translation_m (MocapOptions.hold_sigma_floor; default none)")
+    ap.add_argument("--mocap-json", default=None,
+                    help="motion capture: write every estimate's NEES (6-DOF) per model and sensor kind "
+                         "to this JSON file, to pool seeds")
     ap.add_argument("--priors", default="both", choices=["both", "off", "only"],
                     help="board modes without mounting priors, with them, or both (default)")
     args = ap.parse_args()
@@ -93,6 +122,7 @@ def main() -> int:
               f"{floor[1]:g} m: fraction inside the 95 % region "
               "(6-DOF / translation) and median NEES per degree of freedom (0.89 when right), per "
               "sensor kind; goal 0.90-0.98 and 0.5-2")
+        dump: dict = {}
         for model in args.mocap_models.split(","):
             t0 = time.perf_counter()
             with threadpool_limits(limits=1):
@@ -100,14 +130,18 @@ def main() -> int:
                                    holds=args.mocap_holds, hold_sigma_floor=floor)
             kinds = "  ".join(
                 f"{k} {v['inside_6dof']:.2f}/{v['inside_3dof_translation']:.2f} NEES {v['nees_median']:.2f}"
-                + (f" (offset flagged {v['flagged']}, largest error of a determined one "
-                   f"{1000 * v['offset_error_max_s']:.2f} ms)" if model in ("clock_offset", "mixed", "timing_jitter")
-                   else "")
+                f" [{_count(v)}]"
+                + (f" (offset flagged {v['flagged']}, {_offsets(v)})"
+                   if model in ("clock_offset", "mixed", "timing_jitter") else "")
                 for k, v in m["per_sensor"].items())
             print(f"  {model:14} {kinds}  (naive 6-DOF {m['naive_inside_6dof']:.2f}; {m['failed']} failed; "
                   f"{time.perf_counter() - t0:.0f} s)", flush=True)
             for k, why in m["failures"]:
                 print(f"    trial {k} failed: {why}", flush=True)
+            dump[model] = {k: v["nees_6dof"] for k, v in m["per_sensor"].items()}
+            if args.mocap_json:  # after every model: a long run stopped early keeps what it measured
+                atomic_write_text(args.mocap_json, json.dumps(
+                    {"seed": args.seed, "holds": args.mocap_holds, "nees_6dof": dump}))
     return 0
 
 

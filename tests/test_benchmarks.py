@@ -40,3 +40,28 @@ def test_the_corner_bias_benchmark_prints_a_row_per_square_size(monkeypatch, cap
     for r in rows:
         sb_rms, subpix_rms = float(r[1].split()[0]), float(r[2].split()[0])
         assert 0.0 < sb_rms < 0.5 and 0.0 < subpix_rms < 0.5  # corners found within half a pixel
+
+
+def test_the_coverage_benchmark_prints_counts_with_their_interval_and_dumps_every_nees(monkeypatch, capsys, tmp_path):
+    # one motion-capture session under a clock offset: the fraction as "k of n" with its 95 %
+    # Wilson interval (for n = 1: 0.207-1.000 or 0.000-0.793), the offsets said in words (none
+    # determined is not "nan ms"), and the JSON with one NEES per estimate
+    import json
+
+    dump = tmp_path / "nees.json"
+    out = _run(monkeypatch, capsys, "coverage.py", "--trials", "0", "--mocap-trials", "1", "--mocap-holds", "4",
+               "--mocap-models", "clock_offset", "--mocap-json", str(dump))
+    line = next(x for x in out.splitlines() if x.lstrip().startswith("clock_offset"))
+    for kind in ("lidar", "camera"):
+        part = line.split(kind + " ", 1)[1]
+        assert ("[1 of 1, 95 % interval 0.207-1.000]" in part.split(")")[0]
+                or "[0 of 1, 95 % interval 0.000-0.793]" in part.split(")")[0]), line
+    assert "nan" not in line and ("none determined" in line or " determined, the largest error " in line)
+    data = json.loads(dump.read_text())
+    assert data["seed"] == 0 and data["holds"] == 4
+    nees = data["nees_6dof"]["clock_offset"]
+    assert set(nees) == {"lidar", "camera"}
+    for kind, values in nees.items():
+        assert len(values) == 1 and values[0] >= 0.0
+        inside = values[0] <= 12.5916  # chi-square 95 % for 6 DOF
+        assert (f"[{int(inside)} of 1," in line.split(kind + " ", 1)[1]), (kind, values, line)

@@ -235,13 +235,14 @@ def mocap_coverage(trials: int = 50, seed: int = 0, *, holds: int = 4, frames_pe
     ``failures`` (each one's trial index and error), ``hold_sigma_floor`` (rotation [rad],
     translation [m]: the calibration's ``MocapOptions.hold_sigma_floor``, the MCS's per-hold
     accuracy as a user would state it; default none),
-    ``flagged`` (estimates whose clock offset mattered but was not determined: left out),
+    ``flagged`` (estimates whose clock offset mattered but was not determined: counted in the
+    fractions all the same, a region must hold the truth flagged or not),
     ``inside_6dof`` and ``inside_3dof_translation`` (the reported covariance), ``nees_median``
     (median of ``e' C^-1 e / 6``), ``naive_inside_6dof`` and ``naive_inside_3dof_translation``
     (one shared noise scale, independent frames), ``per_sensor`` (``{"lidar"|"camera": {those
     fractions, "nees_median", "noise_ratio_median": the estimated over the true noise sigma,
     "offset_error_max_s": the largest error of a determined clock offset, "offsets_determined":
-    how many were}}``), ``thresholds``
+    how many were, "nees_6dof": every estimate's ``e' C^-1 e``, to pool seeds}}``), ``thresholds``
     and ``time_s``. Each trial draws from ``numpy.random.default_rng([seed, trial])``, so a
     seed reproduces the numbers.
     """
@@ -287,6 +288,7 @@ def mocap_coverage(trials: int = 50, seed: int = 0, *, holds: int = 4, frames_pe
             "noise_ratio_median": float(np.median([r["noise_ratio"] for r in ok])) if ok else float("nan"),
             "offset_error_max_s": float(max(offs)) if offs else float("nan"),
             "offsets_determined": len(offs),
+            "nees_6dof": [float(r["nees"][0]) for r in ok],
         }
 
     every = summary(per["lidar"] + per["camera"])

@@ -92,8 +92,8 @@ def main() -> int:
                     help="motion capture: the MCS's per-hold accuracy the calibration is told, "
                          "rotation_rad,translation_m (MocapOptions.hold_sigma_floor; default none)")
     ap.add_argument("--mocap-json", default=None,
-                    help="motion capture: write every estimate's NEES (6-DOF) per model and sensor kind "
-                         "to this JSON file, to pool seeds")
+                    help="motion capture: write every estimate's NEES (6-DOF) per model and sensor kind, "
+                         "and whether it took the pooled per-hold value, to this JSON file, to pool seeds")
     ap.add_argument("--priors", default="both", choices=["both", "off", "only"],
                     help="board modes without mounting priors, with them, or both (default)")
     args = ap.parse_args()
@@ -123,6 +123,7 @@ def main() -> int:
               "(6-DOF / translation) and median NEES per degree of freedom (0.89 when right), per "
               "sensor kind; goal 0.90-0.98 and 0.5-2")
         dump: dict = {}
+        pooled: dict = {}
         for model in args.mocap_models.split(","):
             t0 = time.perf_counter()
             with threadpool_limits(limits=1):
@@ -131,6 +132,8 @@ def main() -> int:
             kinds = "  ".join(
                 f"{k} {v['inside_6dof']:.2f}/{v['inside_3dof_translation']:.2f} NEES {v['nees_median']:.2f}"
                 f" [{_count(v)}]"
+                + (f" (took the pooled per-hold value {v['pooled']}, {v['pooled_inside_6dof']} of them inside)"
+                   if v["pooled"] else "")
                 + (f" (offset flagged {v['flagged']}, {_offsets(v)})"
                    if model in ("clock_offset", "mixed", "timing_jitter") else "")
                 for k, v in m["per_sensor"].items())
@@ -139,9 +142,10 @@ def main() -> int:
             for k, why in m["failures"]:
                 print(f"    trial {k} failed: {why}", flush=True)
             dump[model] = {k: v["nees_6dof"] for k, v in m["per_sensor"].items()}
+            pooled[model] = {k: v["pooled_6dof"] for k, v in m["per_sensor"].items()}
             if args.mocap_json:  # after every model: a long run stopped early keeps what it measured
                 atomic_write_text(args.mocap_json, json.dumps(
-                    {"seed": args.seed, "holds": args.mocap_holds, "nees_6dof": dump}))
+                    {"seed": args.seed, "holds": args.mocap_holds, "nees_6dof": dump, "pooled": pooled}))
     return 0
 
 

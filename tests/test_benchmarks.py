@@ -61,6 +61,7 @@ def test_the_coverage_benchmark_prints_counts_with_their_interval_and_dumps_ever
     assert data["seed"] == 0 and data["holds"] == 4
     nees = data["nees_6dof"]["clock_offset"]
     assert set(nees) == {"lidar", "camera"}
+    assert {k: len(v) for k, v in data["pooled"]["clock_offset"].items()} == {"lidar": 1, "camera": 1}
     for kind, values in nees.items():
         assert len(values) == 1 and values[0] >= 0.0
         inside = values[0] <= 12.5916  # chi-square 95 % for 6 DOF

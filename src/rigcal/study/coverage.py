@@ -220,6 +220,7 @@ def _trial(rng: np.random.Generator, holds: int, frames: int, model: str, option
             "offset_status": status,
             "offset_error_s": off_err,
             "offset_std_s": f.time_offset_std_s,
+            "pooled": bool(f.hold_pooled),
         }
     return out
 
@@ -242,7 +243,10 @@ def mocap_coverage(trials: int = 50, seed: int = 0, *, holds: int = 4, frames_pe
     (one shared noise scale, independent frames), ``per_sensor`` (``{"lidar"|"camera": {those
     fractions, "nees_median", "noise_ratio_median": the estimated over the true noise sigma,
     "offset_error_max_s": the largest error of a determined clock offset, "offsets_determined":
-    how many were, "nees_6dof": every estimate's ``e' C^-1 e``, to pool seeds}}``), ``thresholds``
+    how many were, "nees_6dof": every estimate's ``e' C^-1 e``, to pool seeds, "pooled": how
+    many took the MCS's per-hold error pooled over the sensors, "pooled_inside_6dof": how many
+    of those hold the truth, "pooled_6dof": which did, in the order of "nees_6dof"}}``),
+    ``thresholds``
     and ``time_s``. Each trial draws from ``numpy.random.default_rng([seed, trial])``, so a
     seed reproduces the numbers.
     """
@@ -289,6 +293,11 @@ def mocap_coverage(trials: int = 50, seed: int = 0, *, holds: int = 4, frames_pe
             "offset_error_max_s": float(max(offs)) if offs else float("nan"),
             "offsets_determined": len(offs),
             "nees_6dof": [float(r["nees"][0]) for r in ok],
+            # the estimates that took the MCS's per-hold value pooled over the sensors, and how
+            # many of them hold the truth (the pooled value is right only if they share it)
+            "pooled": sum(1 for r in ok if r["pooled"]),
+            "pooled_inside_6dof": sum(1 for r in ok if r["pooled"] and r["nees"][0] <= CHI2_95_6),
+            "pooled_6dof": [bool(r["pooled"]) for r in ok],
         }
 
     every = summary(per["lidar"] + per["camera"])

@@ -60,9 +60,9 @@ def _count(v: dict) -> str:
     """How many truths of how many lie inside, and the fraction's 95 % Wilson interval: what a
     sample of this size can tell of the coverage."""
     n = int(v["checks"])
-    k = round(v["inside_6dof"] * n) if n else 0
     if not n:
         return "0 of 0"
+    k = round(v["inside_6dof"] * n)
     z = 1.959964
     mid = (k + z * z / 2) / (n + z * z)
     half = z * math.sqrt(k * (n - k) / n + z * z / 4) / (n + z * z)

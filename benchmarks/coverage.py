@@ -35,6 +35,7 @@ import time
 
 from threadpoolctl import threadpool_limits
 
+from rigcal.errors import InputError
 from rigcal.io.atomic import atomic_write_text
 from rigcal.study.board_coverage import PriorSpec, board_coverage
 from rigcal.study.coverage import ERROR_MODELS
@@ -124,6 +125,17 @@ def main() -> int:
               "sensor kind; goal 0.90-0.98 and 0.5-2")
         dump: dict = {}
         pooled: dict = {}
+
+        def write_json() -> None:  # after every model: a long run stopped early keeps what it measured
+            if args.mocap_json:
+                atomic_write_text(args.mocap_json, json.dumps(
+                    {"seed": args.seed, "holds": args.mocap_holds, "nees_6dof": dump, "pooled": pooled}))
+
+        try:  # the path checked before the runs, not after the first model's hour
+            write_json()
+        except InputError as exc:
+            print(f"error: --mocap-json: {exc}", file=sys.stderr)
+            return 2
         for model in args.mocap_models.split(","):
             t0 = time.perf_counter()
             with threadpool_limits(limits=1):
@@ -143,9 +155,7 @@ def main() -> int:
                 print(f"    trial {k} failed: {why}", flush=True)
             dump[model] = {k: v["nees_6dof"] for k, v in m["per_sensor"].items()}
             pooled[model] = {k: v["pooled_6dof"] for k, v in m["per_sensor"].items()}
-            if args.mocap_json:  # after every model: a long run stopped early keeps what it measured
-                atomic_write_text(args.mocap_json, json.dumps(
-                    {"seed": args.seed, "holds": args.mocap_holds, "nees_6dof": dump, "pooled": pooled}))
+            write_json()
     return 0
 
 

@@ -66,3 +66,18 @@ def test_the_coverage_benchmark_prints_counts_with_their_interval_and_dumps_ever
         assert len(values) == 1 and values[0] >= 0.0
         inside = values[0] <= 12.5916  # chi-square 95 % for 6 DOF
         assert (f"[{int(inside)} of 1," in line.split(kind + " ", 1)[1]), (kind, values, line)
+
+
+def test_the_coverage_benchmark_refuses_an_unwritable_json_path_before_it_runs(monkeypatch, capsys, tmp_path):
+    # a folder where the file should go: one line naming it, exit 2, no session run, nothing written
+    from rigcal.study import coverage
+
+    monkeypatch.setattr(coverage, "mocap_coverage", lambda *a, **k: pytest.fail("ran before checking the path"))
+    monkeypatch.setattr(sys, "argv", ["coverage.py", "--trials", "0", "--mocap-trials", "1",
+                                      "--mocap-json", str(tmp_path)])
+    with pytest.raises(SystemExit) as exc:
+        runpy.run_path(str(BENCH / "coverage.py"), run_name="__main__")
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--mocap-json" in err[0] and str(tmp_path) in err[0] and "is a directory" in err[0]
+    assert list(tmp_path.iterdir()) == []

@@ -20,6 +20,7 @@ kind.
 Usage: python benchmarks/coverage.py [--trials N] [--seed S] [--modes mcpe,fcpe,pse] [--priors both|off|only]
        [--mocap-trials N] [--mocap-models pixel,...] [--mocap-holds N] [--mocap-hold-floor R,T]
        [--mocap-json PATH] (--trials 0: mocap only)
+       python benchmarks/coverage.py --pool RUN.json [RUN.json ...] (the runs' coverage pooled)
 Each motion-capture fraction is also printed as a count with its 95 % Wilson interval: what that
 many sessions can tell of the coverage.
 """
@@ -28,17 +29,17 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import platform
 import sys
 import time
+from pathlib import Path
 
 from threadpoolctl import threadpool_limits
 
 from rigcal.errors import InputError
 from rigcal.io.atomic import atomic_write_text
 from rigcal.study.board_coverage import PriorSpec, board_coverage
-from rigcal.study.coverage import ERROR_MODELS
+from rigcal.study.coverage import ERROR_MODELS, pool_mocap, wilson
 
 
 def _row(label: str, f: dict) -> str:
@@ -64,10 +65,8 @@ def _count(v: dict) -> str:
     if not n:
         return "0 of 0"
     k = round(v["inside_6dof"] * n)
-    z = 1.959964
-    mid = (k + z * z / 2) / (n + z * z)
-    half = z * math.sqrt(k * (n - k) / n + z * z / 4) / (n + z * z)
-    return f"{k} of {n}, 95 % interval {mid - half:.3f}-{mid + half:.3f}"
+    lo, hi = wilson(k, n)
+    return f"{k} of {n}, 95 % interval {lo:.3f}-{hi:.3f}"
 
 
 def _offsets(v: dict) -> str:
@@ -76,6 +75,43 @@ def _offsets(v: dict) -> str:
         return "none determined"
     return (f"{v['offsets_determined']} determined, the largest error "
             f"{1000 * v['offset_error_max_s']:.2f} ms")
+
+
+def _pool(paths: list[str]) -> int:
+    """The table of docs/mocap.md's measured coverage, from the runs' --mocap-json files."""
+    dumps = []
+    try:
+        for path in paths:
+            try:
+                dumps.append((path, json.loads(Path(path).read_text())))
+            except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+                raise InputError(f"{path}: cannot read a --mocap-json file ({exc})") from None
+        pooled = pool_mocap(dumps)
+    except InputError as exc:
+        print(f"error: --pool: {exc}", file=sys.stderr)
+        return 2
+    print(f"motion capture, {pooled['holds']} holds per sensor, pooled over seeds "
+          f"{', '.join(map(str, pooled['seeds']))}: inside the 95 % region (6-DOF: count and 95 % Wilson "
+          "interval; translation only, of the runs that wrote it) and median NEES per degree of freedom (each "
+          "run's in brackets)")
+    print("| error model | lidar inside 6-DOF | lidar translation | lidar NEES/dof "
+          "| camera inside 6-DOF | camera translation | camera NEES/dof |")
+    print("| --- | --- | --- | --- | --- | --- | --- |")
+    for model, kinds in pooled["models"].items():
+        cells = []
+        for kind in ("lidar", "camera"):
+            v = kinds.get(kind)
+            if v is None:
+                cells += ["-"] * 3
+                continue
+            n, k = v["checks"], v["inside_6dof"]
+            lo, hi = v["interval"]
+            t, n3 = v["inside_3dof_translation"], v["checks_3dof"]
+            cells += [f"{k / n:.3f} ({k} of {n}; {lo:.3f}-{hi:.3f})",
+                      "-" if not n3 else f"{t / n3:.3f}" + ("" if n3 == n else f" (of {n3})"),
+                      f"{v['nees_median']:.2f} ({', '.join(f'{m:.2f}' for m in v['nees_median_by_run'])})"]
+        print(f"| `{model}` | " + " | ".join(cells) + " |")
+    return 0
 
 
 def main() -> int:
@@ -93,11 +129,17 @@ def main() -> int:
                     help="motion capture: the MCS's per-hold accuracy the calibration is told, "
                          "rotation_rad,translation_m (MocapOptions.hold_sigma_floor; default none)")
     ap.add_argument("--mocap-json", default=None,
-                    help="motion capture: write every estimate's NEES (6-DOF) per model and sensor kind, "
-                         "and whether it took the pooled per-hold value, to this JSON file, to pool seeds")
+                    help="motion capture: write every estimate's NEES (6-DOF and translation) per model and "
+                         "sensor kind, and whether it took the pooled per-hold value, to this JSON file, to "
+                         "pool seeds (--pool)")
+    ap.add_argument("--pool", nargs="+", default=None, metavar="JSON",
+                    help="motion capture: print the coverage pooled over runs written by --mocap-json "
+                         "(one per seed) as a table, and run nothing")
     ap.add_argument("--priors", default="both", choices=["both", "off", "only"],
                     help="board modes without mounting priors, with them, or both (default)")
     args = ap.parse_args()
+    if args.pool:
+        return _pool(args.pool)
     print(f"machine: {platform.processor() or platform.machine()}, {platform.system()}, "
           f"python {platform.python_version()}")
     print("fraction of true poses inside the reported 95 % region "
@@ -124,12 +166,14 @@ def main() -> int:
               "(6-DOF / translation) and median NEES per degree of freedom (0.89 when right), per "
               "sensor kind; goal 0.90-0.98 and 0.5-2")
         dump: dict = {}
+        dump3: dict = {}
         pooled: dict = {}
 
         def write_json() -> None:  # after every model: a long run stopped early keeps what it measured
             if args.mocap_json:
                 atomic_write_text(args.mocap_json, json.dumps(
-                    {"seed": args.seed, "holds": args.mocap_holds, "nees_6dof": dump, "pooled": pooled}))
+                    {"seed": args.seed, "holds": args.mocap_holds, "hold_sigma_floor": list(floor),
+                     "nees_6dof": dump, "nees_3dof": dump3, "pooled": pooled}))
 
         try:  # the path checked before the runs, not after the first model's hour
             write_json()
@@ -154,6 +198,7 @@ def main() -> int:
             for k, why in m["failures"]:
                 print(f"    trial {k} failed: {why}", flush=True)
             dump[model] = {k: v["nees_6dof"] for k, v in m["per_sensor"].items()}
+            dump3[model] = {k: v["nees_3dof"] for k, v in m["per_sensor"].items()}
             pooled[model] = {k: v["pooled_6dof"] for k, v in m["per_sensor"].items()}
             write_json()
     return 0

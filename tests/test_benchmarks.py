@@ -58,7 +58,8 @@ def test_the_coverage_benchmark_prints_counts_with_their_interval_and_dumps_ever
                 or "[0 of 1, 95 % interval 0.000-0.793]" in part.split(")")[0]), line
     assert "nan" not in line and ("none determined" in line or " determined, the largest error " in line)
     data = json.loads(dump.read_text())
-    assert data["seed"] == 0 and data["holds"] == 4
+    assert data["seed"] == 0 and data["holds"] == 4 and data["hold_sigma_floor"] == [0.0, 0.0]
+    assert {k: len(v) for k, v in data["nees_3dof"]["clock_offset"].items()} == {"lidar": 1, "camera": 1}
     nees = data["nees_6dof"]["clock_offset"]
     assert set(nees) == {"lidar", "camera"}
     assert {k: len(v) for k, v in data["pooled"]["clock_offset"].items()} == {"lidar": 1, "camera": 1}
@@ -81,3 +82,32 @@ def test_the_coverage_benchmark_refuses_an_unwritable_json_path_before_it_runs(m
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--mocap-json" in err[0] and str(tmp_path) in err[0] and "is a directory" in err[0]
     assert list(tmp_path.iterdir()) == []
+
+
+def test_the_coverage_benchmark_pools_runs_into_the_docs_table(monkeypatch, capsys, tmp_path):
+    # two seeds' files, one model each: one row per model with the counts of both runs together
+    import json
+
+    a, b = tmp_path / "a.json", tmp_path / "b.json"
+    a.write_text(json.dumps({"seed": 0, "holds": 8, "nees_6dof": {"hold_bias": {"lidar": [3.0, 20.0], "camera": [6.0]}},
+                             "nees_3dof": {"hold_bias": {"lidar": [1.0, 9.0], "camera": [1.0]}}}))
+    b.write_text(json.dumps({"seed": 1, "holds": 8, "nees_6dof": {"hold_bias": {"lidar": [4.0], "camera": [5.0]}},
+                             "nees_3dof": {"hold_bias": {"lidar": [1.0]}}}))  # the camera's not written
+    out = _run(monkeypatch, capsys, "coverage.py", "--pool", str(a), str(b))
+    assert "pooled over seeds 0, 1" in out
+    row = next(x for x in out.splitlines() if x.startswith("| `hold_bias`"))
+    cells = [c.strip() for c in row.strip("|").split("|")]
+    assert cells[1].startswith("0.667 (2 of 3; ") and cells[2] == "0.667" and cells[3] == "0.67 (1.92, 0.67)"
+    assert cells[4].startswith("1.000 (2 of 2; ") and cells[5] == "1.000 (of 1)" and cells[6] == "0.92 (1.00, 0.83)"
+    assert "`pixel`" not in out  # no run had it
+
+
+def test_the_coverage_benchmark_refuses_a_file_it_cannot_pool_in_one_line(monkeypatch, capsys, tmp_path):
+    bad = tmp_path / "bad.json"
+    bad.write_text("{not json")
+    monkeypatch.setattr(sys, "argv", ["coverage.py", "--pool", str(bad)])
+    with pytest.raises(SystemExit) as exc:
+        runpy.run_path(str(BENCH / "coverage.py"), run_name="__main__")
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(bad) in err[0] and "--mocap-json" in err[0]

@@ -52,7 +52,7 @@ from rigcal.errors import InputError, RigcalError
 from rigcal.geometry.se3 import from_rt, invert, se3_exp, se3_log
 from rigcal.geometry.so3 import matrix_from_rpy
 
-__all__ = ["CHI2_95_3", "CHI2_95_6", "ERROR_MODELS", "mocap_coverage", "nees"]
+__all__ = ["CHI2_95_3", "CHI2_95_6", "ERROR_MODELS", "mocap_coverage", "nees", "pool_mocap", "wilson"]
 
 #: chi-square quantiles at 0.95 for 6 and 3 degrees of freedom
 CHI2_95_6 = 12.591587243743977
@@ -243,9 +243,10 @@ def mocap_coverage(trials: int = 50, seed: int = 0, *, holds: int = 4, frames_pe
     (one shared noise scale, independent frames), ``per_sensor`` (``{"lidar"|"camera": {those
     fractions, "nees_median", "noise_ratio_median": the estimated over the true noise sigma,
     "offset_error_max_s": the largest error of a determined clock offset, "offsets_determined":
-    how many were, "nees_6dof": every estimate's ``e' C^-1 e``, to pool seeds, "pooled": how
-    many took the MCS's per-hold error pooled over the sensors, "pooled_inside_6dof": how many
-    of those hold the truth, "pooled_6dof": which did, in the order of "nees_6dof"}}``),
+    how many were, "nees_6dof": every estimate's ``e' C^-1 e``, to pool seeds, "nees_3dof":
+    its translation part's, "pooled": how many took the MCS's per-hold error pooled over the
+    sensors, "pooled_inside_6dof": how many of those hold the truth, "pooled_6dof": which did,
+    in the order of "nees_6dof"}}``),
     ``thresholds``
     and ``time_s``. Each trial draws from ``numpy.random.default_rng([seed, trial])``, so a
     seed reproduces the numbers.
@@ -293,6 +294,7 @@ def mocap_coverage(trials: int = 50, seed: int = 0, *, holds: int = 4, frames_pe
             "offset_error_max_s": float(max(offs)) if offs else float("nan"),
             "offsets_determined": len(offs),
             "nees_6dof": [float(r["nees"][0]) for r in ok],
+            "nees_3dof": [float(r["nees"][1]) for r in ok],
             # the estimates that took the MCS's per-hold value pooled over the sensors, and how
             # many of them hold the truth (the pooled value is right only if they share it)
             "pooled": sum(1 for r in ok if r["pooled"]),
@@ -316,3 +318,96 @@ def mocap_coverage(trials: int = 50, seed: int = 0, *, holds: int = 4, frames_pe
         "thresholds": {"chi2_6dof_95": CHI2_95_6, "chi2_3dof_95": CHI2_95_3},
         "time_s": time.perf_counter() - t0,
     }
+
+
+def wilson(k: int, n: int) -> tuple[float, float]:
+    """The 95 % Wilson interval of a fraction ``k`` of ``n`` (what a sample of ``n`` can tell of
+    the probability; (0, 1) for ``n = 0``)."""
+    if n <= 0:
+        return 0.0, 1.0
+    z = 1.959963984540054
+    mid = (k + z * z / 2) / (n + z * z)
+    half = z * math.sqrt(k * (n - k) / n + z * z / 4) / (n + z * z)
+    return max(mid - half, 0.0), min(mid + half, 1.0)
+
+
+def _check_dump(name: str, data) -> None:
+    """``data`` is what ``--mocap-json`` writes, else an :class:`InputError` naming ``name`` and
+    the field."""
+    if not isinstance(data, dict) or not isinstance(data.get("nees_6dof"), dict):
+        raise InputError(f"{name}: not a --mocap-json file (no 'nees_6dof' mapping)")
+    for key in ("seed", "holds"):
+        if isinstance(data.get(key), bool) or not isinstance(data.get(key), int):
+            raise InputError(f"{name}: '{key}' must be an integer, got {data.get(key)!r}")
+    floor = data.get("hold_sigma_floor", [0.0, 0.0])
+    if (not isinstance(floor, list) or len(floor) != 2
+            or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in floor)):
+        raise InputError(f"{name}: 'hold_sigma_floor' must be [rotation_rad, translation_m], got {floor!r}")
+    for field in ("nees_6dof", "nees_3dof"):
+        by_model = data.get(field, {})
+        if not isinstance(by_model, dict):
+            raise InputError(f"{name}: '{field}' must map error models to sensor kinds")
+        for model, kinds in by_model.items():
+            if model not in ERROR_MODELS:
+                raise InputError(f"{name}: '{field}' has {model!r}, not one of {', '.join(ERROR_MODELS)}")
+            if not isinstance(kinds, dict) or not all(
+                    isinstance(v, list) and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)
+                    for v in kinds.values()):
+                raise InputError(f"{name}: '{field}.{model}' must map each sensor kind to a list of numbers")
+
+
+def pool_mocap(dumps) -> dict:
+    """The coverage over several runs of the benchmark, pooled: ``dumps`` a sequence of
+    ``(name, data)`` with ``data`` what ``benchmarks/coverage.py --mocap-json`` wrote
+    (``seed``, ``holds``, ``nees_6dof`` and optionally ``nees_3dof`` and ``hold_sigma_floor``).
+    Two runs of one error model and seed draw the same first sessions (trial ``k`` of seed ``s``
+    is ``default_rng([s, k])``) and runs of other holds or floors other sessions: both refused
+    (:class:`InputError` naming the files). Returns ``{"holds", "seeds", "models": {model:
+    {kind: {"checks", "inside_6dof" (count), "interval" (Wilson), "checks_3dof" (the estimates
+    of the runs that wrote ``nees_3dof``), "inside_3dof_translation" (count of those),
+    "nees_median" (per DOF), "nees_median_by_run" (each run's, in the order given)}}}}``."""
+    dumps = list(dumps)
+    if not dumps:
+        raise InputError("pool: no runs to pool")
+    holds, floors, seeds = {}, {}, {}
+    for name, data in dumps:
+        _check_dump(name, data)
+        for model in data["nees_6dof"]:
+            other = seeds.get((model, data["seed"]))
+            if other is not None:
+                raise InputError(f"{name} and {other} both ran {model!r} with seed {data['seed']}: "
+                                 "their first sessions are the same ones; pool runs of different seeds")
+            seeds[(model, data["seed"])] = name
+        holds[name] = data["holds"]
+        if "hold_sigma_floor" in data:
+            floors[name] = tuple(data["hold_sigma_floor"])
+    for what, by in (("holds", holds), ("hold_sigma_floor", floors)):
+        if len(set(by.values())) > 1:
+            raise InputError("pool: runs of different " + what + ": "
+                             + ", ".join(f"{n} {v}" for n, v in by.items()))
+    models: dict = {}
+    for model in ERROR_MODELS:
+        for kind in ("lidar", "camera"):
+            six, three, medians = [], [], []
+            for name, data in dumps:
+                v6 = data["nees_6dof"].get(model, {}).get(kind)
+                if not v6:
+                    continue
+                v3 = (data.get("nees_3dof") or {}).get(model, {}).get(kind)
+                if v3 is not None and len(v3) == len(v6):
+                    three += [float(x) for x in v3]
+                six += [float(x) for x in v6]
+                medians.append(float(np.median(v6)) / 6)
+            if not six:
+                continue
+            k = sum(1 for x in six if x <= CHI2_95_6)
+            models.setdefault(model, {})[kind] = {
+                "checks": len(six),
+                "inside_6dof": k,
+                "interval": wilson(k, len(six)),
+                "checks_3dof": len(three),
+                "inside_3dof_translation": sum(1 for x in three if x <= CHI2_95_3),
+                "nees_median": float(np.median(six)) / 6,
+                "nees_median_by_run": medians,
+            }
+    return {"holds": next(iter(holds.values())), "seeds": sorted({s for _, s in seeds}), "models": models}

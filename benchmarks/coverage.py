@@ -90,26 +90,28 @@ def _pool(paths: list[str]) -> int:
     except InputError as exc:
         print(f"error: --pool: {exc}", file=sys.stderr)
         return 2
-    print(f"motion capture, {pooled['holds']} holds per sensor, pooled over seeds "
+    print(f"motion capture ({pooled['estimator']}), {pooled['holds']} holds per sensor, pooled over seeds "
           f"{', '.join(map(str, pooled['seeds']))}: inside the 95 % region (6-DOF: count and 95 % Wilson "
-          "interval; translation only, of the runs that wrote it) and median NEES per degree of freedom (each "
-          "run's in brackets)")
-    print("| error model | lidar inside 6-DOF | lidar translation | lidar NEES/dof "
-          "| camera inside 6-DOF | camera translation | camera NEES/dof |")
-    print("| --- | --- | --- | --- | --- | --- | --- |")
+          "interval; translation only, of the runs that wrote it), median NEES per degree of freedom (each "
+          "run's in brackets) and median translation error (of the runs that wrote it)")
+    print("| error model | lidar inside 6-DOF | lidar translation | lidar NEES/dof | lidar error "
+          "| camera inside 6-DOF | camera translation | camera NEES/dof | camera error |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     for model, kinds in pooled["models"].items():
         cells = []
         for kind in ("lidar", "camera"):
             v = kinds.get(kind)
             if v is None:
-                cells += ["-"] * 3
+                cells += ["-"] * 4
                 continue
             n, k = v["checks"], v["inside_6dof"]
             lo, hi = v["interval"]
             t, n3 = v["inside_3dof_translation"], v["checks_3dof"]
             cells += [f"{k / n:.3f} ({k} of {n}; {lo:.3f}-{hi:.3f})",
                       "-" if not n3 else f"{t / n3:.3f}" + ("" if n3 == n else f" (of {n3})"),
-                      f"{v['nees_median']:.2f} ({', '.join(f'{m:.2f}' for m in v['nees_median_by_run'])})"]
+                      f"{v['nees_median']:.2f} ({', '.join(f'{m:.2f}' for m in v['nees_median_by_run'])})",
+                      "-" if not v["checks_error"] else f"{1000 * v['error_median_m']:.2f} mm"
+                      + ("" if v["checks_error"] == n else f" (of {v['checks_error']})")]
         print(f"| `{model}` | " + " | ".join(cells) + " |")
     return 0
 
@@ -128,6 +130,9 @@ def main() -> int:
     ap.add_argument("--mocap-hold-floor", default="0,0", type=_floor,
                     help="motion capture: the MCS's per-hold accuracy the calibration is told, "
                          "rotation_rad,translation_m (MocapOptions.hold_sigma_floor; default none)")
+    ap.add_argument("--mocap-estimator", default="ls", choices=["ls", "gls"],
+                    help="motion capture: MocapOptions.estimator (default ls: the least-squares solution; "
+                         "gls: weighted by the estimated noise model)")
     ap.add_argument("--mocap-json", default=None,
                     help="motion capture: write every estimate's NEES (6-DOF and translation) per model and "
                          "sensor kind, and whether it took the pooled per-hold value, to this JSON file, to "
@@ -168,12 +173,14 @@ def main() -> int:
         dump: dict = {}
         dump3: dict = {}
         pooled: dict = {}
+        errors: dict = {}
 
         def write_json() -> None:  # after every model: a long run stopped early keeps what it measured
             if args.mocap_json:
                 atomic_write_text(args.mocap_json, json.dumps(
                     {"seed": args.seed, "holds": args.mocap_holds, "hold_sigma_floor": list(floor),
-                     "nees_6dof": dump, "nees_3dof": dump3, "pooled": pooled}))
+                     "estimator": args.mocap_estimator, "nees_6dof": dump, "nees_3dof": dump3,
+                     "pooled": pooled, "errors_m": errors}))
 
         try:  # the path checked before the runs, not after the first model's hour
             write_json()
@@ -184,9 +191,11 @@ def main() -> int:
             t0 = time.perf_counter()
             with threadpool_limits(limits=1):
                 m = mocap_coverage(trials=args.mocap_trials, seed=args.seed, error_model=model,
-                                   holds=args.mocap_holds, hold_sigma_floor=floor)
+                                   holds=args.mocap_holds, hold_sigma_floor=floor,
+                                   estimator=args.mocap_estimator)
             kinds = "  ".join(
                 f"{k} {v['inside_6dof']:.2f}/{v['inside_3dof_translation']:.2f} NEES {v['nees_median']:.2f}"
+                f" error {1000 * v['error_median_m']:.2f} mm"
                 f" [{_count(v)}]"
                 + (f" (took the pooled per-hold value {v['pooled']}, {v['pooled_inside_6dof']} of them inside)"
                    if v["pooled"] else "")
@@ -200,6 +209,7 @@ def main() -> int:
             dump[model] = {k: v["nees_6dof"] for k, v in m["per_sensor"].items()}
             dump3[model] = {k: v["nees_3dof"] for k, v in m["per_sensor"].items()}
             pooled[model] = {k: v["pooled_6dof"] for k, v in m["per_sensor"].items()}
+            errors[model] = {k: v["errors_m"] for k, v in m["per_sensor"].items()}
             write_json()
     return 0
 

@@ -59,6 +59,11 @@ def test_the_coverage_benchmark_prints_counts_with_their_interval_and_dumps_ever
     assert "nan" not in line and ("none determined" in line or " determined, the largest error " in line)
     data = json.loads(dump.read_text())
     assert data["seed"] == 0 and data["holds"] == 4 and data["hold_sigma_floor"] == [0.0, 0.0]
+    assert data["estimator"] == "ls"  # the default
+    errors = data["errors_m"]["clock_offset"]
+    assert {k: len(v) for k, v in errors.items()} == {"lidar": 1, "camera": 1}
+    for kind, (e,) in errors.items():  # the line's median of one estimate, in mm
+        assert 0.0 < e < 0.05 and f"error {1000 * e:.2f} mm" in line.split(kind + " ", 1)[1]
     assert {k: len(v) for k, v in data["nees_3dof"]["clock_offset"].items()} == {"lidar": 1, "camera": 1}
     nees = data["nees_6dof"]["clock_offset"]
     assert set(nees) == {"lidar", "camera"}
@@ -90,15 +95,19 @@ def test_the_coverage_benchmark_pools_runs_into_the_docs_table(monkeypatch, caps
 
     a, b = tmp_path / "a.json", tmp_path / "b.json"
     a.write_text(json.dumps({"seed": 0, "holds": 8, "nees_6dof": {"hold_bias": {"lidar": [3.0, 20.0], "camera": [6.0]}},
-                             "nees_3dof": {"hold_bias": {"lidar": [1.0, 9.0], "camera": [1.0]}}}))
+                             "nees_3dof": {"hold_bias": {"lidar": [1.0, 9.0], "camera": [1.0]}}, "estimator": "gls",
+                             "errors_m": {"hold_bias": {"lidar": [0.001, 0.004], "camera": [0.002]}}}))
     b.write_text(json.dumps({"seed": 1, "holds": 8, "nees_6dof": {"hold_bias": {"lidar": [4.0], "camera": [5.0]}},
-                             "nees_3dof": {"hold_bias": {"lidar": [1.0]}}}))  # the camera's not written
+                             "nees_3dof": {"hold_bias": {"lidar": [1.0]}}, "estimator": "gls",
+                             "errors_m": {"hold_bias": {"lidar": [0.003]}}}))  # the camera's not written
     out = _run(monkeypatch, capsys, "coverage.py", "--pool", str(a), str(b))
-    assert "pooled over seeds 0, 1" in out
+    assert "motion capture (gls)" in out and "pooled over seeds 0, 1" in out
     row = next(x for x in out.splitlines() if x.startswith("| `hold_bias`"))
     cells = [c.strip() for c in row.strip("|").split("|")]
     assert cells[1].startswith("0.667 (2 of 3; ") and cells[2] == "0.667" and cells[3] == "0.67 (1.92, 0.67)"
-    assert cells[4].startswith("1.000 (2 of 2; ") and cells[5] == "1.000 (of 1)" and cells[6] == "0.92 (1.00, 0.83)"
+    assert cells[4] == "3.00 mm"
+    assert cells[5].startswith("1.000 (2 of 2; ") and cells[6] == "1.000 (of 1)" and cells[7] == "0.92 (1.00, 0.83)"
+    assert cells[8] == "2.00 mm (of 1)"
     assert "`pixel`" not in out  # no run had it
 
 

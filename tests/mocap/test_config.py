@@ -114,10 +114,11 @@ def test_lidar_points_and_correspondences_are_chosen_in_the_config(folder):
     assert cfg.options.correspondences == "surface"
     text = CONFIG.replace("definition: CheckerboardTargetSim.json}",
                           "definition: CheckerboardTargetSim.json, use_lidar_keypoints: false}")
-    text = text.replace("loss: huber", "loss: huber, correspondences: centroid")
+    text = text.replace("loss: huber", "loss: huber, correspondences: centroid, estimator: gls")
     cfg = _parse(folder, text)
     assert not cfg.targets["diamond"].target.use_lidar_keypoints
     assert cfg.options.correspondences == "centroid"
+    assert cfg.options.estimator == "gls" and load_mocap_config(folder / "mocap.yaml").options.estimator == "ls"
 
 
 def test_defaults_and_a_folder_recording(folder):
@@ -206,6 +207,8 @@ ERRORS = [
      r"options\.target_pose_sigma: expected \[rotation_rad, translation_m\]"),
     ("bad correspondences", _replace("loss: huber", "loss: huber, correspondences: magic"),
      r"options\.correspondences: expected one of surface, centroid, got 'magic'"),
+    ("bad estimator", _replace("loss: huber", "loss: huber, estimator: wls"),
+     r"options\.estimator: expected one of gls, ls, got 'wls'"),
     ("bad use_lidar_keypoints", _replace("definition: CheckerboardTargetSim.json}",
                                          "definition: CheckerboardTargetSim.json, use_lidar_keypoints: 1}"),
      r"mocap\.targets\.diamond\.use_lidar_keypoints: expected true or false, got 1"),

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rigcal.problem.mocap_noise import Components, effective_dof, fit_components, fit_shared, sandwich, widening
+from rigcal.problem.mocap_noise import (Components, NoiseCovariance, effective_dof, fit_components, fit_shared, gls, sandwich,
+                                        weighting_test, widening)
 
 
 def _design(rng, holds=8, frames=6, points=40):
@@ -134,6 +135,169 @@ def test_sandwich_parts_add_up_and_the_prior_bounds_an_undetermined_effect():
     cov6 = sum(parts.values())
     assert cov7[6, 6] == pytest.approx(0.01, rel=0.05)
     assert cov7[0, 0] == pytest.approx(cov6[0, 0] + 0.01, rel=0.05)
+
+
+def _dense_v(n, loads, comp, groups=None, known=None):
+    known = np.zeros(n, dtype=bool) if known is None else known
+    V = np.diag(np.where(known, 1.0, comp.s2))
+    for c, U in loads.items():
+        if c != "view_pose":
+            V += comp.get(c) * U @ U.T
+    if groups is not None and comp.get("view") > 0:
+        Z = np.zeros((n, groups.max() + 1))
+        Z[np.flatnonzero(groups >= 0), groups[groups >= 0]] = 1.0
+        V += comp.get("view") * Z @ Z.T
+        if "view_pose" in loads:
+            V -= comp.get("view") * loads["view_pose"] @ loads["view_pose"].T
+    return V
+
+
+def _dense_lambda(V, X, C, loads, comp, groups, known, W):
+    """2 C [sum_ab W_ab (Q_ab - P_a C P_b)] C with every source's share of V formed."""
+    n = len(X)
+    share = {"point": np.diag(np.where(known, 0.0, comp.s2))}
+    for c in ("capture", "hold"):
+        share[c] = comp.get(c) * loads[c] @ loads[c].T
+    Z = np.zeros((n, groups.max() + 1))
+    Z[np.flatnonzero(groups >= 0), groups[groups >= 0]] = 1.0
+    share["view"] = comp.get("view") * (Z @ Z.T - loads["view_pose"] @ loads["view_pose"].T)
+    Vi = np.linalg.inv(V)
+    inner = np.zeros((X.shape[1],) * 2)
+    for (a, b), w in W.items():
+        Pa = -X.T @ Vi @ share[a] @ Vi @ X
+        Pb = -X.T @ Vi @ share[b] @ Vi @ X
+        Q = X.T @ Vi @ share[a] @ Vi @ share[b] @ Vi @ X
+        inner += w * (Q - Pa @ C @ Pb)
+    return 2.0 * C @ (0.5 * (inner + inner.T)) @ C
+
+
+def test_gls_step_and_parts_are_the_dense_generalised_least_squares():
+    """The step from the current fixed effects to the GLS estimate (with the prior's pull on a
+    seventh effect), and its covariance split by source, against V formed and inverted."""
+    rng = np.random.default_rng(31)
+    X, loads, groups = _design(rng, holds=3, frames=2, points=6)
+    n = len(X)
+    known = np.zeros(n, dtype=bool)
+    known[-10:] = True  # rows of known unit variance, in no view group
+    groups = np.where(known, -1, groups)
+    loads = {**loads, "view_pose": 0.05 * rng.normal(size=(n, 3))}
+    comp = Components(s2=0.7, values={"capture": 0.5, "hold": 2.0, "view": 0.3}, dof={"hold": 5.0}, floored={})
+    X7 = np.column_stack([X, rng.normal(size=n)])
+    prior, mean = np.r_[np.zeros(6), 1.0 / 0.2], np.r_[np.zeros(6), 0.05]
+    r = rng.normal(size=n)
+    step, parts = gls(r, X7, loads, comp, prior, mean, groups, known)
+    V = _dense_v(n, loads, comp, groups, known)
+    assert np.all(np.linalg.eigvalsh(V) > 0)
+    Vi = np.linalg.inv(V)
+    P = np.diag(prior ** 2)
+    C = np.linalg.inv(X7.T @ Vi @ X7 + P)
+    assert step == pytest.approx(-C @ (X7.T @ Vi @ r + P @ mean), rel=1e-8, abs=1e-12)
+    assert set(parts) == {"point", "known", "capture", "hold", "view", "prior", "weights"}
+    assert sum(v for k, v in parts.items() if k != "weights") == pytest.approx(C, rel=1e-8, abs=1e-14)
+    H = Vi @ X7 @ C
+    U = loads["hold"]
+    assert parts["hold"] == pytest.approx(2.0 * H.T @ U @ U.T @ H, rel=1e-8, abs=1e-14)
+    # the weights' uncertainty (Kenward-Roger's 2 Lambda) from each source's share of V and the
+    # covariance of the variances' logs: here only the hold's, 2 / dof
+    assert parts["weights"] == pytest.approx(_dense_lambda(V, X7, C, loads, comp, groups, known,
+                                                           {("hold", "hold"): 2.0 / 5.0}), rel=1e-6, abs=1e-14)
+    # with the components' correlations (REML's log_cov), crossing terms count
+    lc = {("point", "point"): 0.01, ("hold", "hold"): 0.3, ("capture", "capture"): 0.1,
+          ("point", "hold"): -0.02, ("hold", "point"): -0.02, ("view", "view"): 0.05}
+    comp2 = Components(s2=0.7, values=comp.values, dof={"hold": 5.0}, floored={}, log_cov=lc)
+    _, parts2 = gls(r, X7, loads, comp2, prior, mean, groups, known)
+    assert parts2["weights"] == pytest.approx(_dense_lambda(V, X7, C, loads, comp2, groups, known, lc),
+                                              rel=1e-6, abs=1e-14)
+    assert np.all(np.linalg.eigvalsh(parts2["weights"]) > -1e-12) and np.trace(parts2["weights"]) > 0
+    # the weighted estimate is the better one: least squares (every row alike) scatters more
+    ls = sum(sandwich(X7, loads, comp, prior, groups, known).values())
+    assert np.all(np.linalg.eigvalsh(ls - C) > -1e-12) and np.trace(ls) > 1.05 * np.trace(C)
+
+
+def _huber(c):
+    return lambda u2: np.where(u2 <= c * c, 1.0, c / np.sqrt(np.maximum(u2, 1e-300)))
+
+
+def test_gls_weighs_down_an_outlier_by_its_std_under_the_noise_model_not_a_modelled_hold_error():
+    rng = np.random.default_rng(34)
+    X, loads, groups = _design(rng, holds=6, frames=3, points=8)
+    loads = {"hold": loads["hold"]}
+    comp = Components(s2=1.0, values={"hold": 4.0}, dof={}, floored={})
+    n = len(X)
+    L = np.linalg.cholesky(_dense_v(n, loads, comp))
+    r = L @ rng.normal(size=n)  # per-hold errors of several point sigmas: modelled, not outliers
+    plain, _ = gls(r, X, loads, comp)
+    assert gls(r, X, loads, comp, robust=_huber(3.0))[0] == pytest.approx(plain, rel=0.05, abs=1e-9)
+    # a huber loss on the point noise alone would call many of them outliers
+    assert np.mean(np.abs(r) > 3.0) > 0.05
+    bad = r.copy()
+    bad[:5] += 200.0  # five wild rows
+    pulled = gls(bad, X, loads, comp)[0]
+    held = gls(bad, X, loads, comp, robust=_huber(3.0))[0]
+    assert np.linalg.norm(held - plain) < 0.2 * np.linalg.norm(pulled - plain)
+
+
+def test_the_weighting_test_passes_residuals_of_the_model_and_rejects_an_error_it_lacks():
+    from scipy.stats import chi2
+
+    rng = np.random.default_rng(35)
+    X, loads, groups = _design(rng, holds=6, frames=3, points=8)
+    loads = {"hold": loads["hold"] * np.linspace(0.2, 3.0, len(X))[:, None]}
+    comp = Components(s2=1.0, values={"hold": 4.0}, dof={}, floored={})
+    n = len(X)
+    L = np.linalg.cholesky(_dense_v(n, loads, comp))
+    vcov = NoiseCovariance(loads, comp, None, None, n)
+    ls_cov = sum(sandwich(X, loads, comp).values())
+
+    def stat(r):
+        r = r - X @ np.linalg.lstsq(X, r, rcond=None)[0]  # at the least-squares solution
+        step, parts = gls(r, X, loads, comp, vcov=vcov)
+        return weighting_test(step, ls_cov, sum(parts.values()))
+
+    stats = [stat(L @ rng.normal(size=n)) for _ in range(300)]
+    dof = {d for _, d in stats}
+    assert dof == {6}
+    level = chi2.ppf(0.99, 6)
+    assert np.mean([t > level for t, _ in stats]) < 0.04  # 1 % expected
+    assert np.mean([t for t, _ in stats]) == pytest.approx(6.0, abs=0.8)
+    # one hold's error far beyond the per-hold variance the model has (a bad hold): weighted
+    # by the model it is taken for that hold's error, least squares takes it into the pose
+    U = loads["hold"]
+    bad = L @ rng.normal(size=n) + 25.0 * np.sqrt(4.0) * U[:, :3] @ np.ones(3)
+    assert stat(bad)[0] > 2 * level, stat(bad)
+
+
+def test_gls_estimate_scatters_as_its_covariance_says_and_apart_from_the_noise_estimate():
+    """Residuals drawn from the model (per-hold errors dominating): over many draws the GLS
+    estimate scatters as its covariance says, and - unlike the least-squares estimate - its
+    error is uncorrelated with the residual contrasts the noise is estimated from (the size of
+    the per-hold error seen in the residuals)."""
+    rng = np.random.default_rng(32)
+    X, loads, groups = _design(rng, holds=6, frames=3, points=8)
+    loads = {"hold": loads["hold"] * np.linspace(0.2, 3.0, len(X))[:, None]}  # unequal holds
+    comp = Components(s2=1.0, values={"hold": 25.0}, dof={}, floored={})
+    n = len(X)
+    V = _dense_v(n, loads, comp)
+    L = np.linalg.cholesky(V)
+    Q, _ = np.linalg.qr(X)
+    est_g, est_l, contrast = [], [], []
+    for _ in range(1000):
+        e = L @ rng.normal(size=n)
+        step, parts = gls(e, X, loads, comp)
+        est_g.append(step)
+        est_l.append(-np.linalg.lstsq(X, e, rcond=None)[0])
+        res = e - Q @ (Q.T @ e)
+        contrast.append(float(res @ res))
+    est_g, est_l, contrast = map(np.asarray, (est_g, est_l, contrast))
+    C = sum(v for k, v in parts.items() if k != "weights")  # the weights known here
+    size_g = np.einsum("ij,jk,ik->i", est_g, np.linalg.inv(C), est_g)
+    ls_cov = sum(sandwich(X, loads, comp).values())
+    size_l = np.einsum("ij,jk,ik->i", est_l, np.linalg.inv(ls_cov), est_l)
+    corr_g = np.corrcoef(size_g, contrast)[0, 1]
+    corr_l = np.corrcoef(size_l, contrast)[0, 1]
+    # the mean of a chi-square with 6 dof over 1000 draws: 6 +- 0.11
+    assert np.mean(size_g) == pytest.approx(6.0, abs=0.4), np.mean(size_g)
+    assert abs(corr_g) < 0.15 < corr_l, (corr_g, corr_l)
 
 
 def test_widening_and_effective_degrees_of_freedom():

@@ -42,6 +42,18 @@ def test_pooling_counts_every_estimate_of_every_run_once():
     assert "lidar" not in got["models"]["hold_bias"] and "mixed" not in got["models"]
 
 
+def test_the_errors_pool_over_the_runs_that_wrote_them_and_the_estimator_is_named():
+    a = {**_run(0, {"pixel": {"lidar": [1.0, 2.0]}}), "estimator": "gls",
+         "errors_m": {"pixel": {"lidar": [0.001, 0.003]}}}
+    b = {**_run(1, {"pixel": {"lidar": [1.0]}}), "estimator": "gls"}  # no errors written
+    got = pool_mocap([("a", a), ("b", b)])
+    lidar = got["models"]["pixel"]["lidar"]
+    assert got["estimator"] == "gls" and lidar["checks"] == 3 and lidar["checks_error"] == 2
+    assert lidar["error_median_m"] == pytest.approx(0.002)
+    # files written before the estimator was chosen were least squares'
+    assert pool_mocap([("c", _run(0, {"pixel": {"lidar": [1.0]}}))])["estimator"] == "ls"
+
+
 def test_the_translation_part_counts_only_the_runs_that_wrote_it():
     a = _run(0, {"pixel": {"lidar": [1.0]}}, {"pixel": {"lidar": [CHI2_95_3 + 1]}})
     b = _run(1, {"pixel": {"lidar": [1.0, 2.0]}})  # written before nees_3dof was
@@ -53,6 +65,9 @@ def test_the_translation_part_counts_only_the_runs_that_wrote_it():
     (_run(0, {"pixel": {"lidar": [1.0]}}), ["b.json", "a.json", "'pixel'", "seed 0"]),
     (_run(1, {"pixel": {"lidar": [1.0]}}, holds=4), ["holds", "a.json 8", "b.json 4"]),
     (_run(1, {"pixel": {"lidar": [1.0]}}, floor=(0.002, 0.001)), ["hold_sigma_floor", "b.json"]),
+    ({**_run(1, {"pixel": {"lidar": [1.0]}}), "estimator": "gls"}, ["estimator", "a.json ls", "b.json gls"]),
+    ({**_run(1, {}), "estimator": "wls"}, ["b.json", "'estimator'", "'wls'"]),
+    ({**_run(1, {}), "errors_m": {"pixel": {"lidar": [None]}}}, ["b.json", "'errors_m.pixel'"]),
     ({"seed": 1, "holds": 8}, ["b.json", "nees_6dof"]),
     ({"seed": "1", "holds": 8, "nees_6dof": {}}, ["b.json", "'seed'", "'1'"]),
     ({"seed": 1, "holds": 8, "nees_6dof": {"pixels": {"lidar": [1.0]}}}, ["b.json", "'pixels'", "hold_bias"]),

@@ -487,11 +487,11 @@ def _options(raw: Any, source: str) -> MocapOptions:
     for key, value in raw.items():
         w = f"{where}.{key}"
         default = getattr(defaults, key)
-        if key in ("loss", "correspondences"):
-            from rigcal.problem.mocap import CORRESPONDENCES
+        if key in ("loss", "correspondences", "estimator"):
+            from rigcal.problem.mocap import CORRESPONDENCES, ESTIMATORS
             from rigcal.problem.solver import LOSSES
 
-            allowed = tuple(LOSSES) if key == "loss" else CORRESPONDENCES
+            allowed = {"loss": tuple(LOSSES), "correspondences": CORRESPONDENCES, "estimator": ESTIMATORS}[key]
             if value not in allowed:
                 raise InputError(f"{w}: expected one of {', '.join(allowed)}, got {value!r}")
             kw[key] = value

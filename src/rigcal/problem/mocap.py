@@ -167,6 +167,8 @@ class TargetObservation:
 
 #: correspondence schemes for measurements without keypoints (see the module docstring)
 CORRESPONDENCES = ("surface", "centroid")
+#: how each sensor's estimate is made from the solution (MocapOptions.estimator)
+ESTIMATORS = ("gls", "ls")
 
 
 @dataclass(frozen=True)
@@ -217,8 +219,18 @@ class MocapOptions:
     #: a lidar's points on a curved surface (the cylinder's tube) tied by their range along the
     #: ray (False: by their distance to the surface, biased under range noise across a thin tube)
     curved_ranges: bool = True
+    #: "ls" (the default): the least-squares solution with the sandwich covariance under the
+    #: estimated noise model; "gls": each sensor's estimate weighted by its estimated noise
+    #: model (one generalised least-squares step from the solution,
+    #: :func:`rigcal.problem.mocap_noise.gls`, where the weighting test accepts the model's
+    #: weights) - more accurate where MCS errors dominate, its regions measured in docs/mocap.md.
+    #: Sensors coupled by estimated target poses or board placements keep least squares
+    estimator: str = "ls"
 
     def __post_init__(self) -> None:
+        if self.estimator not in ESTIMATORS:
+            raise ConfigError(f"mocap options: estimator must be one of {', '.join(ESTIMATORS)}, "
+                              f"got {self.estimator!r}")
         if not isinstance(self.curved_ranges, (bool, np.bool_)):
             raise ConfigError(f"mocap options: curved_ranges must be true or false, got {self.curved_ranges!r}")
         if self.correspondences not in CORRESPONDENCES:
@@ -645,6 +657,12 @@ class MocapSensorFit:
     #: every sensor that agrees with it, not from this sensor's alone (its degrees of freedom
     #: in ``components_dof`` are the pooled estimate's)
     hold_pooled: bool = False
+    #: how the estimate was made: ``"gls"`` (weighted by the estimated noise model) or ``"ls"``
+    #: (the least-squares solution: ``MocapOptions.estimator``, sensors coupled by estimated
+    #: target poses, or the weighting test rejected the model's weights), and the weighting
+    #: test's statistic over its chi-square 99 % quantile (> 1: rejected; NaN: not tested)
+    estimator: str = "ls"
+    weighting_test: float = float("nan")
 
     @property
     def match_fraction(self) -> float:
@@ -1013,6 +1031,13 @@ class _SensorStats:
     determined: bool
     dof: float = float("inf")
     widening: float = 1.0
+    #: the generalised least-squares step from the solution: the free pose columns (right
+    #: perturbation), then the clock offset's [s] when it is estimated; zeros: least squares
+    step: np.ndarray = None  # type: ignore[assignment]
+    #: the estimate's kind ("gls" or "ls") and the weighting test's statistic over its 99 %
+    #: quantile (> 1: the model's weights rejected; NaN: not weighted)
+    estimator: str = "ls"
+    weighting: float = float("nan")
 
 
 @dataclass(frozen=True)
@@ -1083,24 +1108,59 @@ def _components(inputs: Mapping[str, _NoiseInputs]) -> dict:
     return out
 
 
-def _sensor_statistics(lin: _Linear, inputs: _NoiseInputs, comp, observations, options: MocapOptions) -> _SensorStats:
-    from rigcal.problem.mocap_noise import effective_dof, sandwich, widening
+def _sensor_statistics(lin: _Linear, inputs: _NoiseInputs, comp, observations, options: MocapOptions,
+                       weighted: bool = False, offset: float = 0.0) -> _SensorStats:
+    """One sensor's covariance (and clock offset's std) under its noise model ``comp``.
+    ``weighted``: of the generalised least-squares estimate (:func:`mocap_noise.gls`; its step
+    from the solution in ``step``), else of the least-squares one the solver returned (the
+    sandwich). ``offset``: the clock offset [s] the solution has (the prior's mean is 0)."""
+    from scipy.stats import chi2
+
+    from rigcal.problem.mocap_noise import (WEIGHTING_LEVEL, WEIGHTS, NoiseCovariance, effective_dof, gls, ls_step,
+                                            sandwich, weighting_test, widening)
 
     X, loads, groups, streams = inputs.X, inputs.loadings, inputs.groups, inputs.streams
     prior = None
     if lin.j_offset is not None:
         prior = np.r_[np.zeros(6), 1.0 / options.time_offset_sigma_s]
+    step = np.zeros(X.shape[1])
     parts = sandwich(X, loads, comp, prior, groups, lin.known)
+
+    def parts_of(Xs):
+        return sandwich(Xs, loads, comp, None, groups, lin.known)
+
+    test = float("nan")
+    if weighted:
+        from rigcal.problem.solver import _robust
+
+        # rows far outside their std under the noise model (an outlier) weigh as the solver's
+        # robust loss would have them
+        robust = None if options.loss == "linear" else (lambda u2: _robust(u2, options.loss, options.loss_scale)[1])
+        mean = None if prior is None else np.r_[np.zeros(6), offset]
+        vcov = NoiseCovariance(loads, comp, groups, lin.known, len(lin.r))
+        g_step, g_parts = gls(lin.r, X, loads, comp, prior, mean, groups, lin.known, robust, vcov)
+        # the weights only where the model describes the residuals (Hausman's test): a step
+        # larger than the model allows keeps the least-squares estimate
+        d = g_step - ls_step(lin.r, X, comp, prior, mean, lin.known)
+        stat, dof = weighting_test(d, sum(parts.values()), sum(v for c, v in g_parts.items() if c != WEIGHTS))
+        test = stat / float(chi2.ppf(WEIGHTING_LEVEL, dof)) if dof else 0.0
+        if test <= 1.0:
+            step, parts = g_step, g_parts
+
+            def parts_of(Xs):
+                return gls(lin.r, Xs, loads, comp, None, None, groups, lin.known, robust, vcov)[1]
     # the components were estimated from few groups: the covariance widened so that a 6-DOF
     # region holds the truth as often as it says (Satterthwaite's degrees of freedom)
-    nu = effective_dof(parts, comp, 6)
+    # (the weights' own part, a GLS estimate's, is not an estimated variance's share: left out
+    # of the count)
+    nu = effective_dof({c: v for c, v in parts.items() if c != WEIGHTS}, comp, 6)
     k = widening(nu)
     cov_all = k * sum(v for c, v in parts.items() if c != "prior") + parts.get("prior", 0.0)
     cov = cov_all[:6, :6]
     offset_std, effect = float("nan"), 1.0
     if lin.j_offset is not None:
         offset_std = float(np.sqrt(max(cov_all[6, 6], 0.0)))
-        fixed_parts = sandwich(lin.Js, loads, comp, None, groups, lin.known)
+        fixed_parts = parts_of(lin.Js)
         fixed = widening(effective_dof(fixed_parts, comp, 6)) * sum(fixed_parts.values())
         try:
             L = np.linalg.cholesky(fixed + 1e-18 * np.eye(6) * max(float(np.trace(fixed)), 1e-300))
@@ -1126,25 +1186,42 @@ def _sensor_statistics(lin: _Linear, inputs: _NoiseInputs, comp, observations, o
              "view": float(np.sqrt(comp.get("view"))),
              "view_affine": float(np.sqrt(comp.get("view_affine")))}
     return _SensorStats(lin.cols, cov, np.zeros((6, 6)), comp.s2, comp, noise,
-                        (hold_r, hold_t), offset_std, effect, determined, float(nu), float(k))
+                        (hold_r, hold_t), offset_std, effect, determined, float(nu), float(k), step,
+                        "gls" if test <= 1.0 else "ls", test)
 
 
 def _statistics(prob: Problem, sol, sensors, observations, holds, options: MocapOptions,
-                offsets: Mapping[str, bool], edges=None):
+                offsets: Mapping[str, float], edges=None):
     """Per-sensor noise components, covariances (and clock-offset std) at the solution, and a
-    function giving the joint covariance of a list of sensors."""
+    function giving the joint covariance of a list of sensors. ``offsets``: the clock offset
+    [s] of every sensor whose offset is estimated.
+
+    With ``options.estimator == "gls"`` each sensor's estimate is the generalised least-squares
+    one under its noise model: ``stats[name].step`` (6 + 1,) is the step from the solution to it
+    (the pose's right perturbation, the clock offset's), its ``cov`` the GLS covariance. When
+    the sensors are coupled (target poses estimated, board placements), with ``"ls"`` or where
+    the weighting test rejects the weights, the least-squares solution and its covariance stand
+    (zero steps)."""
     r, J, layout, row_obs, row_sensor, row_known = _rows(prob, sol)
     stats: dict[str, _SensorStats] = {}
     lins = {s.name: _linearise(r, J, layout, row_obs, row_sensor, row_known, s.name, sol.poses[s.name],
-                               observations, offsets.get(s.name, False)) for s in sensors}
+                               observations, s.name in offsets) for s in sensors}
     inputs = {name: _noise_inputs(lin, observations, holds, options, edges) for name, lin in lins.items()}
     comps = _components(inputs)
-    for s in sensors:
-        st = _sensor_statistics(lins[s.name], inputs[s.name], comps[s.name], observations, options)
-        st.naive = sol.pose_covariance(s.name)
-        stats[s.name] = st
     coupled = any(p.free != (False,) * 6 for p in prob.poses if p.name.startswith("target:")) \
         or any(not b.label.startswith(ROBOT) for b in prob.observations)
+    weighted = options.estimator == "gls" and not coupled
+    for s in sensors:
+        lin = lins[s.name]
+        st = _sensor_statistics(lin, inputs[s.name], comps[s.name], observations, options, weighted,
+                                float(offsets.get(s.name, 0.0)))
+        st.naive = sol.pose_covariance(s.name)
+        free = layout.cols[layout.index[s.name]] >= 0
+        k = int(free.sum())
+        xi = np.zeros(6)
+        xi[free] = st.step[:k]
+        st.step = np.r_[xi, st.step[k] if lin.j_offset is not None else 0.0]
+        stats[s.name] = st
     C = None
     if coupled:
         # the joint covariance: the full one with every sensor's rows weighted by its own noise,
@@ -1261,11 +1338,21 @@ def _check_holds(sensors, observations, holds, options: MocapOptions) -> None:
             sensor=s.name)
 
 
-def _matches(prob: Problem, sol, sensors, observations, whitened) -> dict[str, dict[str, tuple[int, int]]]:
+def _residuals_at(prob: Problem) -> tuple[np.ndarray, ...]:
+    """The whitened residuals (n, d) of every observation batch at the problem's own poses."""
+    from rigcal.problem.solver import _evaluate, prepare
+
+    layout = prepare(prob)
+    T = np.stack([p.T for p in prob.poses])
+    return tuple(_evaluate(prob, layout, T, "linear", 1.0, False)[3])
+
+
+def _matches(prob: Problem, residuals, sensors, observations, whitened) -> dict[str, dict[str, tuple[int, int]]]:
     """Per sensor and target, (measurements within 3 configured sigma, measurements);
-    ``whitened[sensor]``: the sigma ``sol``'s residuals were whitened by, over the configured."""
+    ``residuals``: each batch's whitened residuals, ``whitened[sensor]``: the sigma they were
+    whitened by, over the configured."""
     out: dict[str, dict[str, list[int]]] = {s.name: {} for s in sensors}
-    for b, raw in zip(prob.observations, sol.residuals):
+    for b, raw in zip(prob.observations, residuals):
         if not _noisy(b):
             continue
         lim = 3.0 * np.sqrt(b.dim)
@@ -1432,12 +1519,11 @@ def calibrate_mocap_fit(
                 if max((abs(d) for d in steps.values()), default=0.0) < _OFFSET_SETTLED_S:
                     break
     coupled = options.target_pose_sigma is not None or boards is not None
-    moving = {n: True for n in offsets}
     # residuals of ``sol`` are whitened by the configured sigma times this (a reweighted solve
     # whitens by the estimated noise): _matches judges against the configured sigma
     whitened = {s.name: 1.0 for s in sensors}
     with single_threaded():
-        stats, joint = _statistics(prob, sol, sensors, shifted, holds, options, moving, edges)
+        stats, joint = _statistics(prob, sol, sensors, shifted, holds, options, offsets, edges)
         if coupled or any(abs(np.log(st.s2)) > np.log(4.0) for st in stats.values()):
             # every sensor weighted by its own noise (and the robust loss's scale with it)
             factor = {n: float(np.sqrt(st.s2)) for n, st in stats.items()}
@@ -1449,7 +1535,7 @@ def calibrate_mocap_fit(
                 sol = sol2
                 poses = {s.name: sol.poses[s.name] for s in sensors}
                 whitened = factor
-            stats, joint = _statistics(prob, sol, sensors, shifted, holds, options, moving, edges)
+            stats, joint = _statistics(prob, sol, sensors, shifted, holds, options, offsets, edges)
             for n, st in stats.items():
                 st.s2 *= factor[n] ** 2
                 st.noise["view"] *= factor[n]
@@ -1457,6 +1543,18 @@ def calibrate_mocap_fit(
             prob = prob.with_observations(tuple(
                 b.with_sigma(b.sigma / factor[b.sensor]) if _noisy(b) else b
                 for b in prob.observations))
+    # each sensor's generalised least-squares estimate under its noise model: one step from
+    # the least-squares solution (zero when the sensors are coupled or options.estimator == "ls")
+    residuals = sol.residuals
+    if any(np.any(st.step != 0.0) for st in stats.values()):
+        poses = {n: T @ se3_exp(stats[n].step[:6]) for n, T in poses.items()}
+        offsets = {n: o + float(stats[n].step[6]) for n, o in offsets.items()}
+        if offsets:
+            shifted = [shift_observation(o, offsets.get(o.sensor, 0.0)) for o in observations]
+        # the matches counted where the estimate is (with the offsets it has)
+        at = _build(sensors, shifted, poses, surfaces, options, boards, block_poses, phase, edges)
+        residuals, whitened = _residuals_at(at), {s.name: 1.0 for s in sensors}
+        prob = at
     for s in sensors:
         if s.kind == SensorKind.CAMERA:
             own = [o for o in shifted if o.sensor == s.name]
@@ -1467,7 +1565,7 @@ def calibrate_mocap_fit(
                     f"the image under the estimate: its pose is not determined by its measurements",
                     sensor=s.name)
     estimates, rmse, reproj, fits = {}, {}, {}, {}
-    matches = _matches(prob, sol, sensors, shifted, whitened)
+    matches = _matches(prob, residuals, sensors, shifted, whitened)
     thinnest = _thinnest_ranged(shifted, surfaces, edges)
     for s in sensors:
         st = stats[s.name]
@@ -1511,6 +1609,8 @@ def calibrate_mocap_fit(
             noise_dof=st.dof, region_widening=st.widening,
             curved_target=curved_target, curved_radius_m=curved_radius,
             hold_pooled=bool(st.comp.fixed),
+            estimator=st.estimator,
+            weighting_test=st.weighting,
         )
     noise_model = {}
     for s in sensors:

@@ -37,10 +37,16 @@ the per-hold error is one MCS's in every sensor's holds: :func:`fit_shared` esti
 all of them together, and :func:`fit_components` holds a component at such a value
 (``fixed``) while it estimates the others.
 
-The estimate itself is the least-squares one the solver returns; its covariance is the
-sandwich ``A^-1 (X' V X / s2 + P) A^-1`` with ``A = X' X / s2 + P``, where ``P`` is the prior
-of the clock offset (a pseudo-observation ``offset / sigma``) - so an offset the data cannot
-tell from the pose widens the pose's covariance instead of hiding in it.
+The estimate is by default the solver's least-squares one, with the sandwich covariance ``A^-1
+(X' V X / s2 + P) A^-1``, ``A = X' X / s2 + P`` (:func:`sandwich`), where ``P`` is the prior of
+the clock offset (a pseudo-observation ``offset / sigma``) - so an offset the data cannot tell
+from the pose widens the pose's covariance instead of hiding in it. Every frame is weighted
+alike, so where per-hold or per-capture MCS errors dominate it is less accurate than the data
+allow and its error grows with the noise the residuals show. ``MocapOptions.estimator = "gls"``
+takes the generalised least-squares estimate under the estimated ``V`` instead (:func:`gls`:
+one weighted step from the solution) with the covariance ``C = (X' V^-1 X + P)^-1`` plus what
+the weights' own uncertainty adds (Kenward-Roger), where :func:`weighting_test` accepts the
+model's weights.
 """
 
 from __future__ import annotations
@@ -54,7 +60,7 @@ from scipy.optimize import minimize, minimize_scalar
 from scipy.stats import chi2, f as f_dist
 
 __all__ = ["COMPONENTS", "Components", "SHARED", "Shared", "effective_dof", "fit_components", "fit_shared",
-           "sandwich", "widening"]
+           "NoiseCovariance", "gls", "ls_step", "sandwich", "weighting_test", "widening"]
 
 #: the random effects besides the per-point noise, in the order of the parameters
 COMPONENTS = ("capture", "jitter", "hold_rot", "hold", "view_affine", "edge")
@@ -65,6 +71,8 @@ FAMILIES = {"hold_rot": "hold", "hold": "hold", "view_affine": "hold"}
 VIEW = "view"
 #: the loading of the view component's part in the pose directions (taken out of it)
 VIEW_POSE = "view_pose"
+#: the part of a GLS covariance that the weights' own uncertainty adds (:func:`gls`)
+WEIGHTS = "weights"
 #: a variance component is kept when dropping it raises -2 log REML by more than this (a test
 #: of a variance on the boundary at about the 5 % level)
 LIKELIHOOD_RATIO = 2.71
@@ -888,6 +896,238 @@ def sandwich(X: np.ndarray, loadings: Mapping[str, np.ndarray], comp: Components
     if prior is not None:
         parts["prior"] = Ai @ P @ Ai
     return {k: 0.5 * (v + v.T) for k, v in parts.items()}
+
+
+class NoiseCovariance:
+    """The residuals' covariance ``V`` under ``comp`` (see :func:`gls`), factored once:
+    ``solve(M)`` is ``V^-1 M`` without forming ``V`` - the view groups' part in closed form
+    (each group ``s2 I + view 1 1'``), the low-rank components (sparse: each loads the rows of
+    one capture or hold) by Woodbury."""
+
+    def __init__(self, loadings: Mapping[str, np.ndarray], comp: Components, groups: np.ndarray | None,
+                 known: np.ndarray | None, n: int):
+        from scipy import sparse
+        from scipy.linalg import lu_factor
+
+        self.known = np.zeros(n, dtype=bool) if known is None else np.asarray(known, dtype=bool)
+        s2 = comp.s2
+        self.d = np.where(self.known, 1.0, s2)
+        self.view = view = comp.get(VIEW)
+        g = None if groups is None else np.asarray(groups)
+        self.grouped = g is not None and view > 0 and bool(np.any(g >= 0))
+        if self.grouped:
+            self.sel = np.flatnonzero(g >= 0)
+            self.ids, self.inverse, counts = np.unique(g[self.sel], return_inverse=True, return_counts=True)
+            self.coef = view / (s2 * (s2 + counts * view))
+            # rows to groups (a sum over each group's rows)
+            self.G = sparse.csr_matrix((np.ones(len(self.sel)), (self.inverse, self.sel)), shape=(len(self.ids), n))
+        # the low-rank part: every kept component's loading, and the view's pose part (negative)
+        self.names, self.Us, weights = [], [], []
+        for c, Uc in loadings.items():
+            if c == VIEW_POSE:
+                continue
+            v = comp.get(c)
+            if Uc.shape[1] and v > 0:
+                self.names.append(c)
+                self.Us.append(sparse.csc_matrix(np.asarray(Uc, dtype=float)))
+                weights.append(np.full(Uc.shape[1], v))
+        vp = loadings.get(VIEW_POSE)
+        self.vp = None
+        if self.grouped and vp is not None and vp.shape[1]:
+            self.vp = np.asarray(vp, dtype=float)
+            self.Us.append(sparse.csc_matrix(self.vp))
+            weights.append(np.full(vp.shape[1], -view))
+        self.U = None
+        self.weights = np.concatenate(weights) if weights else np.zeros(0)
+        if self.Us:
+            self.U = sparse.hstack(self.Us).tocsc()
+            self.BiU = self._b_inv_sparse(self.U)
+            N = np.diag(1.0 / self.weights) + (self.U.T @ self.BiU).toarray()
+            self.N = lu_factor(N)
+
+    def _b_inv_sparse(self, U):
+        from scipy import sparse
+
+        out = sparse.diags(1.0 / self.d) @ U
+        if self.grouped:
+            out = out - self.G.T @ (sparse.diags(self.coef) @ (self.G @ U))
+        return out.tocsc()
+
+    def _b_inv(self, M: np.ndarray) -> np.ndarray:
+        out = M / self.d[:, None]
+        if self.grouped:
+            S = np.zeros((len(self.ids), M.shape[1]))
+            np.add.at(S, self.inverse, M[self.sel])
+            out[self.sel] -= self.coef[self.inverse, None] * S[self.inverse]
+        return out
+
+    def solve(self, M: np.ndarray) -> np.ndarray:
+        from scipy.linalg import lu_solve
+
+        BiM = self._b_inv(M)
+        if self.U is None:
+            return BiM
+        return BiM - self.BiU @ lu_solve(self.N, self.U.T @ BiM)
+
+    def diagonal(self) -> np.ndarray:
+        """``diag(V)``: each row's variance under the model."""
+        var = self.d.copy()
+        if self.U is not None:
+            var += np.asarray(self.U.multiply(self.U) @ self.weights).ravel()
+        if self.grouped:
+            var[self.sel] += self.view
+        return var
+
+
+def gls(r: np.ndarray, X: np.ndarray, loadings: Mapping[str, np.ndarray], comp: Components,
+        prior: np.ndarray | None = None, prior_mean: np.ndarray | None = None,
+        groups: np.ndarray | None = None, known: np.ndarray | None = None, robust=None,
+        vcov: "NoiseCovariance | None" = None) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """The generalised least-squares step from the fixed effects at which ``r`` was taken, and
+    the covariance of the estimate it reaches, by source (as :func:`sandwich`'s parts).
+
+    With ``V`` the residuals' covariance under ``comp`` (the point noise, every random component
+    of ``loadings``, the view groups) the step ``d`` minimises ``(r + X d)' V^-1 (r + X d) +
+    |P^1/2 (m + d)|^2`` (``P = diag(prior^2)``: the prior of :func:`sandwich`, ``prior_mean``
+    (p,) the fixed effects' current values relative to the prior's mean, e.g. the clock offset
+    already estimated). The estimate's covariance is ``C = (X' V^-1 X + P)^-1``, split as ``C X'
+    V^-1 V_c V^-1 X C`` over the sources ``c`` (and ``C P C``), so that Satterthwaite's degrees
+    of freedom (:func:`effective_dof`) count what each estimated component contributes. Unlike
+    the least-squares estimate, the GLS one is uncorrelated with the residual contrasts the
+    components are estimated from (REML's), so its region's widening for the estimated noise
+    holds: where per-hold errors dominate, least squares (every frame weighted alike) lets the
+    size of its error move the noise estimate with it.
+
+    ``robust``: a robust loss's derivative ``rho'(u^2)`` (1 inside its scale): a row whose
+    residual is far outside its std under ``V`` (``u = r_i / sqrt(V_ii)``: per-hold and
+    per-capture errors included, so a view's shift is not an outlier) weighs ``sqrt(rho')`` in
+    the step, an outlier as the solver's robust loss would have it.
+
+    ``vcov``: ``V`` already factored (:class:`NoiseCovariance` of the same arguments), to reuse
+    for several ``X``."""
+    r = np.asarray(r, dtype=float)
+    X = np.asarray(X, dtype=float)
+    n, p = X.shape
+    V = vcov if vcov is not None else NoiseCovariance(loadings, comp, groups, known, n)
+    s2, known, view = comp.s2, V.known, V.view
+    names, Us, grouped, vp = V.names, V.Us, V.grouped, V.vp
+    if grouped:
+        sel, ids, inverse = V.sel, V.ids, V.inverse
+    v_inv = V.solve
+    if robust is not None:
+        w = np.sqrt(np.asarray(robust(r * r / np.maximum(V.diagonal(), 1e-300)), dtype=float))
+        r, X = w * r, w[:, None] * X
+    ViM = v_inv(np.column_stack([X, r]))
+    ViX, Vir = ViM[:, :p], ViM[:, p]
+    P = np.diag(np.square(prior)) if prior is not None else np.zeros((p, p))
+    mean = np.zeros(p) if prior_mean is None else np.asarray(prior_mean, dtype=float)
+    A = X.T @ ViX + P
+    A = 0.5 * (A + A.T)
+    C = np.linalg.pinv(A, rcond=1e-13)
+    step = -C @ (X.T @ Vir + P @ mean)
+    # the parts: C X' V^-1 V_c V^-1 X C, V_c each source's share of V
+    H = ViX @ C  # (n, p): V^-1 X C
+    parts = {"point": s2 * (H[~known].T @ H[~known])}
+    if known.any():
+        parts["known"] = H[known].T @ H[known]
+    for c, Uc in zip(names, Us):
+        UH = Uc.T @ H
+        parts[c] = comp.get(c) * (UH.T @ UH)
+    if grouped:
+        S = np.zeros((len(ids), p))
+        np.add.at(S, inverse, H[sel])
+        meat = S.T @ S
+        if vp is not None and vp.shape[1]:
+            VH = vp.T @ H
+            meat = meat - VH.T @ VH
+        parts[VIEW] = view * meat
+    if prior is not None:
+        parts["prior"] = C @ P @ C
+    # the weights are estimated: the GLS estimate moves with them and C, computed with them,
+    # is too small on average (Kackar-Harville; Kenward-Roger's 2 Lambda, V linear in the
+    # variances): Lambda = C [sum_ab W_ab (Q_ab - P_a C P_b)] C with W the covariance of the
+    # variances' estimates (in logs: comp.log_cov, else 2 / dof), and for each source a its
+    # share V_a of V: P_a = -X'V^-1 V_a V^-1 X, Q_ab = X'V^-1 V_a V^-1 V_b V^-1 X
+    shares = {"point": np.where(known[:, None], 0.0, s2 * ViX)}
+    for c, Uc in zip(names, Us):
+        shares[c] = comp.get(c) * (Uc @ (Uc.T @ ViX))
+    if grouped:
+        S = np.zeros((len(ids), p))
+        np.add.at(S, inverse, ViX[sel])
+        F = np.zeros((n, p))
+        F[sel] = S[inverse]
+        if vp is not None and vp.shape[1]:
+            F = F - vp @ (vp.T @ ViX)
+        shares[VIEW] = view * F
+    labels = list(shares)
+    lc = comp.log_cov or {}
+    m = len(labels)
+    W = np.zeros((m, m))
+    for a, na in enumerate(labels):
+        if comp.floored.get(na) or na in comp.fixed or (na, na) not in lc:
+            dof = comp.dof.get(na, float("inf"))
+            if np.isfinite(dof) and dof > 0 and not comp.floored.get(na):
+                W[a, a] = 2.0 / dof
+            continue
+        for b, nb in enumerate(labels):
+            if nb not in comp.fixed and (na, nb) in lc:
+                W[a, b] = lc[(na, nb)]
+    if np.any(W):
+        Fs = [shares[c] for c in labels]
+        ViF = [v_inv(F) for F in Fs]
+        Pm = [-(ViX.T @ F) for F in Fs]
+        inner = np.zeros((p, p))
+        for a in range(m):
+            for b in range(m):
+                if W[a, b]:
+                    inner += W[a, b] * (Fs[a].T @ ViF[b] - Pm[a] @ C @ Pm[b])
+        parts[WEIGHTS] = 2.0 * C @ (0.5 * (inner + inner.T)) @ C
+    return step, {k: 0.5 * (v + v.T) for k, v in parts.items()}
+
+
+def ls_step(r: np.ndarray, X: np.ndarray, comp: Components, prior: np.ndarray | None = None,
+            prior_mean: np.ndarray | None = None, known: np.ndarray | None = None) -> np.ndarray:
+    """The least-squares step from the fixed effects at which ``r`` was taken (the estimate
+    :func:`sandwich` gives the covariance of: rows weighted by ``1 / s2``, those of ``known``
+    variance by 1, the prior as in :func:`gls`). At a solver's solution it is about zero, but not
+    quite where a robust loss weighed rows down: the weighting test compares like with like."""
+    p = X.shape[1]
+    known = np.zeros(len(X), dtype=bool) if known is None else np.asarray(known, dtype=bool)
+    w = np.where(known, 1.0, 1.0 / comp.s2)
+    P = np.diag(np.square(prior)) if prior is not None else np.zeros((p, p))
+    mean = np.zeros(p) if prior_mean is None else np.asarray(prior_mean, dtype=float)
+    A = X.T @ (w[:, None] * X) + P
+    return -np.linalg.pinv(0.5 * (A + A.T), rcond=1e-13) @ (X.T @ (w * r) + P @ mean)
+
+
+#: the weighting test (:func:`weighting_test`) rejects the noise model's weights above this
+#: quantile of its chi-square
+WEIGHTING_LEVEL = 0.99
+
+
+def weighting_test(step: np.ndarray, ls_cov: np.ndarray, gls_cov: np.ndarray) -> tuple[float, int]:
+    """Hausman's test of the noise model's weights: under the model the GLS estimate and the
+    least-squares one (:func:`gls` and :func:`ls_step` of the same residuals) differ by ``step``
+    with covariance ``ls_cov - gls_cov`` (the GLS one is the
+    efficient of the two), so ``step' (ls_cov - gls_cov)^+ step`` is chi-square with as many
+    degrees of freedom as the difference has directions. A larger value says the residuals
+    hold errors the model does not describe (a template cloud's discretisation, a bias of the
+    extractor): weighted by the model the estimate would move by more than its noise allows.
+    Returns the statistic and the degrees of freedom (directions in which weighting changes
+    the covariance by more than 1e-6 of least squares')."""
+    ls_cov = 0.5 * (ls_cov + ls_cov.T)
+    w, Q = np.linalg.eigh(ls_cov)
+    keep = w > 1e-12 * max(float(w.max()), 1e-300)
+    if not keep.any():
+        return 0.0, 0
+    Wh = Q[:, keep] / np.sqrt(w[keep])  # whitens the least-squares covariance
+    D = Wh.T @ (ls_cov - gls_cov) @ Wh
+    lam, E = np.linalg.eigh(0.5 * (D + D.T))
+    on = lam > 1e-6
+    if not on.any():
+        return 0.0, 0
+    u = E[:, on].T @ (Wh.T @ step)
+    return float(np.sum(u * u / lam[on])), int(on.sum())
 
 
 def effective_dof(parts: Mapping[str, np.ndarray], comp: Components, dim: int | None = None) -> float:

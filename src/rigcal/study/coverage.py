@@ -221,12 +221,14 @@ def _trial(rng: np.random.Generator, holds: int, frames: int, model: str, option
             "offset_error_s": off_err,
             "offset_std_s": f.time_offset_std_s,
             "pooled": bool(f.hold_pooled),
+            "error_m": float(np.linalg.norm(est.T_reference_sensor[:3, 3] - truth[name][:3, 3])),
         }
     return out
 
 
 def mocap_coverage(trials: int = 50, seed: int = 0, *, holds: int = 4, frames_per_hold: int = 5,
-                   error_model: str = "hold_bias", hold_sigma_floor: tuple[float, float] = (0.0, 0.0)) -> dict:
+                   error_model: str = "hold_bias", hold_sigma_floor: tuple[float, float] = (0.0, 0.0),
+                   estimator: str = "ls") -> dict:
     """Fractions of ``trials`` seeded simulated sessions (see the module docstring) whose true
     ``T_robot_sensor`` lies inside the reported 95 % region, per sensor and over both, under
     ``error_model`` (one of :data:`ERROR_MODELS`).
@@ -246,7 +248,9 @@ def mocap_coverage(trials: int = 50, seed: int = 0, *, holds: int = 4, frames_pe
     how many were, "nees_6dof": every estimate's ``e' C^-1 e``, to pool seeds, "nees_3dof":
     its translation part's, "pooled": how many took the MCS's per-hold error pooled over the
     sensors, "pooled_inside_6dof": how many of those hold the truth, "pooled_6dof": which did,
-    in the order of "nees_6dof"}}``),
+    in the order of "nees_6dof", "errors_m": every estimate's translation error [m] in that
+    order, "error_median_m": their median}}``), ``estimator`` (``MocapOptions.estimator``:
+    "ls", the default, or "gls"),
     ``thresholds``
     and ``time_s``. Each trial draws from ``numpy.random.default_rng([seed, trial])``, so a
     seed reproduces the numbers.
@@ -260,7 +264,7 @@ def mocap_coverage(trials: int = 50, seed: int = 0, *, holds: int = 4, frames_pe
         raise InputError(f"mocap_coverage: error_model must be one of {', '.join(ERROR_MODELS)}, got {error_model!r}")
     from rigcal.problem.mocap import MocapOptions
 
-    options = MocapOptions(hold_sigma_floor=hold_sigma_floor)  # checks it (ConfigError)
+    options = MocapOptions(hold_sigma_floor=hold_sigma_floor, estimator=estimator)  # checks them (ConfigError)
     t0 = time.perf_counter()
     per: dict[str, list] = {"lidar": [], "camera": []}
     failed, failures = 0, []
@@ -300,6 +304,8 @@ def mocap_coverage(trials: int = 50, seed: int = 0, *, holds: int = 4, frames_pe
             "pooled": sum(1 for r in ok if r["pooled"]),
             "pooled_inside_6dof": sum(1 for r in ok if r["pooled"] and r["nees"][0] <= CHI2_95_6),
             "pooled_6dof": [bool(r["pooled"]) for r in ok],
+            "error_median_m": float(np.median([r["error_m"] for r in ok])) if ok else float("nan"),
+            "errors_m": [float(r["error_m"]) for r in ok],
         }
 
     every = summary(per["lidar"] + per["camera"])
@@ -310,6 +316,7 @@ def mocap_coverage(trials: int = 50, seed: int = 0, *, holds: int = 4, frames_pe
         "frames_per_hold": int(frames_per_hold),
         "error_model": error_model,
         "hold_sigma_floor": options.hold_sigma_floor,
+        "estimator": options.estimator,
         "failed": failed,
         "failures": failures,
         **{k: every[k] for k in ("checks", "flagged", "inside_6dof", "inside_3dof_translation", "nees_median",
@@ -343,7 +350,9 @@ def _check_dump(name: str, data) -> None:
     if (not isinstance(floor, list) or len(floor) != 2
             or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in floor)):
         raise InputError(f"{name}: 'hold_sigma_floor' must be [rotation_rad, translation_m], got {floor!r}")
-    for field in ("nees_6dof", "nees_3dof"):
+    if data.get("estimator", "ls") not in ("gls", "ls"):
+        raise InputError(f"{name}: 'estimator' must be 'gls' or 'ls', got {data.get('estimator')!r}")
+    for field in ("nees_6dof", "nees_3dof", "errors_m"):
         by_model = data.get(field, {})
         if not isinstance(by_model, dict):
             raise InputError(f"{name}: '{field}' must map error models to sensor kinds")
@@ -365,13 +374,18 @@ def pool_mocap(dumps) -> dict:
     (:class:`InputError` naming the files). Returns ``{"holds", "seeds", "models": {model:
     {kind: {"checks", "inside_6dof" (count), "interval" (Wilson), "checks_3dof" (the estimates
     of the runs that wrote ``nees_3dof``), "inside_3dof_translation" (count of those),
-    "nees_median" (per DOF), "nees_median_by_run" (each run's, in the order given)}}}}``."""
+    "nees_median" (per DOF), "nees_median_by_run" (each run's, in the order given),
+    "checks_error" (the estimates of the runs that wrote ``errors_m``), "error_median_m" (their
+    median translation error)}}}, "estimator"}``: runs of different estimators are refused too (a
+    file without ``estimator`` was written by least squares)."""
     dumps = list(dumps)
     if not dumps:
         raise InputError("pool: no runs to pool")
-    holds, floors, seeds = {}, {}, {}
+    holds, floors, seeds, estimators = {}, {}, {}, {}
     for name, data in dumps:
         _check_dump(name, data)
+        # files written before the estimator was chosen are of least squares, then the only one
+        estimators[name] = data.get("estimator", "ls")
         for model in data["nees_6dof"]:
             other = seeds.get((model, data["seed"]))
             if other is not None:
@@ -381,14 +395,14 @@ def pool_mocap(dumps) -> dict:
         holds[name] = data["holds"]
         if "hold_sigma_floor" in data:
             floors[name] = tuple(data["hold_sigma_floor"])
-    for what, by in (("holds", holds), ("hold_sigma_floor", floors)):
+    for what, by in (("holds", holds), ("hold_sigma_floor", floors), ("estimator", estimators)):
         if len(set(by.values())) > 1:
             raise InputError("pool: runs of different " + what + ": "
                              + ", ".join(f"{n} {v}" for n, v in by.items()))
     models: dict = {}
     for model in ERROR_MODELS:
         for kind in ("lidar", "camera"):
-            six, three, medians = [], [], []
+            six, three, medians, errors = [], [], [], []
             for name, data in dumps:
                 v6 = data["nees_6dof"].get(model, {}).get(kind)
                 if not v6:
@@ -396,6 +410,9 @@ def pool_mocap(dumps) -> dict:
                 v3 = (data.get("nees_3dof") or {}).get(model, {}).get(kind)
                 if v3 is not None and len(v3) == len(v6):
                     three += [float(x) for x in v3]
+                ve = (data.get("errors_m") or {}).get(model, {}).get(kind)
+                if ve is not None and len(ve) == len(v6):
+                    errors += [float(x) for x in ve]
                 six += [float(x) for x in v6]
                 medians.append(float(np.median(v6)) / 6)
             if not six:
@@ -409,5 +426,8 @@ def pool_mocap(dumps) -> dict:
                 "inside_3dof_translation": sum(1 for x in three if x <= CHI2_95_3),
                 "nees_median": float(np.median(six)) / 6,
                 "nees_median_by_run": medians,
+                "checks_error": len(errors),
+                "error_median_m": float(np.median(errors)) if errors else float("nan"),
             }
-    return {"holds": next(iter(holds.values())), "seeds": sorted({s for _, s in seeds}), "models": models}
+    return {"holds": next(iter(holds.values())), "seeds": sorted({s for _, s in seeds}),
+            "estimator": next(iter(estimators.values())), "models": models}

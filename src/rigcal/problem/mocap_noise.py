@@ -1025,29 +1025,8 @@ def gls(r: np.ndarray, X: np.ndarray, loadings: Mapping[str, np.ndarray], comp: 
     A = 0.5 * (A + A.T)
     C = np.linalg.pinv(A, rcond=1e-13)
     step = -C @ (X.T @ Vir + P @ mean)
-    # the parts: C X' V^-1 V_c V^-1 X C, V_c each source's share of V
-    H = ViX @ C  # (n, p): V^-1 X C
-    parts = {"point": s2 * (H[~known].T @ H[~known])}
-    if known.any():
-        parts["known"] = H[known].T @ H[known]
-    for c, Uc in zip(names, Us):
-        UH = Uc.T @ H
-        parts[c] = comp.get(c) * (UH.T @ UH)
-    if grouped:
-        S = np.zeros((len(ids), p))
-        np.add.at(S, inverse, H[sel])
-        meat = S.T @ S
-        if vp is not None and vp.shape[1]:
-            VH = vp.T @ H
-            meat = meat - VH.T @ VH
-        parts[VIEW] = view * meat
-    if prior is not None:
-        parts["prior"] = C @ P @ C
-    # the weights are estimated: the GLS estimate moves with them and C, computed with them,
-    # is too small on average (Kackar-Harville; Kenward-Roger's 2 Lambda, V linear in the
-    # variances): Lambda = C [sum_ab W_ab (Q_ab - P_a C P_b)] C with W the covariance of the
-    # variances' estimates (in logs: comp.log_cov, else 2 / dof), and for each source a its
-    # share V_a of V: P_a = -X'V^-1 V_a V^-1 X, Q_ab = X'V^-1 V_a V^-1 V_b V^-1 X
+    # each source's share V_c V^-1 X of V V^-1 X = X (the rows of known variance apart), and
+    # the parts of C by source: C X' V^-1 V_c V^-1 X C
     shares = {"point": np.where(known[:, None], 0.0, s2 * ViX)}
     for c, Uc in zip(names, Us):
         shares[c] = comp.get(c) * (Uc @ (Uc.T @ ViX))
@@ -1059,6 +1038,17 @@ def gls(r: np.ndarray, X: np.ndarray, loadings: Mapping[str, np.ndarray], comp: 
         if vp is not None and vp.shape[1]:
             F = F - vp @ (vp.T @ ViX)
         shares[VIEW] = view * F
+    meats = {c: ViX.T @ F for c, F in shares.items()}  # X' V^-1 V_c V^-1 X
+    parts = {c: C @ M @ C for c, M in meats.items()}
+    if known.any():
+        parts["known"] = C @ (ViX[known].T @ ViX[known]) @ C
+    if prior is not None:
+        parts["prior"] = C @ P @ C
+    # the weights are estimated: the GLS estimate moves with them and C, computed with them,
+    # is too small on average (Kackar-Harville; Kenward-Roger's 2 Lambda, V linear in the
+    # variances): Lambda = C [sum_ab W_ab (Q_ab - P_a C P_b)] C with W the covariance of the
+    # variances' estimates (in logs: comp.log_cov, else 2 / dof), and for each source a its
+    # share V_a of V: P_a = -X'V^-1 V_a V^-1 X, Q_ab = X'V^-1 V_a V^-1 V_b V^-1 X
     labels = list(shares)
     lc = comp.log_cov or {}
     m = len(labels)
@@ -1075,7 +1065,7 @@ def gls(r: np.ndarray, X: np.ndarray, loadings: Mapping[str, np.ndarray], comp: 
     if np.any(W):
         Fs = [shares[c] for c in labels]
         ViF = [v_inv(F) for F in Fs]
-        Pm = [-(ViX.T @ F) for F in Fs]
+        Pm = [meats[c] for c in labels]  # -P_a
         inner = np.zeros((p, p))
         for a in range(m):
             for b in range(m):

@@ -953,12 +953,14 @@ class NoiseCovariance:
             out = out - self.G.T @ (sparse.diags(self.coef) @ (self.G @ U))
         return out.tocsc()
 
+    def group_sums(self, M: np.ndarray) -> np.ndarray:
+        """(groups, k): the sum of ``M``'s rows (n, k) over each view group (``grouped`` only)."""
+        return np.asarray(self.G @ M)
+
     def _b_inv(self, M: np.ndarray) -> np.ndarray:
         out = M / self.d[:, None]
         if self.grouped:
-            S = np.zeros((len(self.ids), M.shape[1]))
-            np.add.at(S, self.inverse, M[self.sel])
-            out[self.sel] -= self.coef[self.inverse, None] * S[self.inverse]
+            out[self.sel] -= self.coef[self.inverse, None] * self.group_sums(M)[self.inverse]
         return out
 
     def solve(self, M: np.ndarray) -> np.ndarray:
@@ -1011,8 +1013,6 @@ def gls(r: np.ndarray, X: np.ndarray, loadings: Mapping[str, np.ndarray], comp: 
     V = vcov if vcov is not None else NoiseCovariance(loadings, comp, groups, known, n)
     s2, known, view = comp.s2, V.known, V.view
     names, Us, grouped, vp = V.names, V.Us, V.grouped, V.vp
-    if grouped:
-        sel, ids, inverse = V.sel, V.ids, V.inverse
     v_inv = V.solve
     if robust is not None:
         w = np.sqrt(np.asarray(robust(r * r / np.maximum(V.diagonal(), 1e-300)), dtype=float))
@@ -1031,10 +1031,8 @@ def gls(r: np.ndarray, X: np.ndarray, loadings: Mapping[str, np.ndarray], comp: 
     for c, Uc in zip(names, Us):
         shares[c] = comp.get(c) * (Uc @ (Uc.T @ ViX))
     if grouped:
-        S = np.zeros((len(ids), p))
-        np.add.at(S, inverse, ViX[sel])
         F = np.zeros((n, p))
-        F[sel] = S[inverse]
+        F[V.sel] = V.group_sums(ViX)[V.inverse]
         if vp is not None and vp.shape[1]:
             F = F - vp @ (vp.T @ ViX)
         shares[VIEW] = view * F

@@ -350,8 +350,10 @@ def _check_dump(name: str, data) -> None:
     if (not isinstance(floor, list) or len(floor) != 2
             or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in floor)):
         raise InputError(f"{name}: 'hold_sigma_floor' must be [rotation_rad, translation_m], got {floor!r}")
-    if data.get("estimator", "ls") not in ("gls", "ls"):
-        raise InputError(f"{name}: 'estimator' must be 'gls' or 'ls', got {data.get('estimator')!r}")
+    from rigcal.problem.mocap import ESTIMATORS
+
+    if data.get("estimator", "ls") not in ESTIMATORS:
+        raise InputError(f"{name}: 'estimator' must be one of {', '.join(ESTIMATORS)}, got {data.get('estimator')!r}")
     for field in ("nees_6dof", "nees_3dof", "errors_m"):
         by_model = data.get(field, {})
         if not isinstance(by_model, dict):

@@ -39,7 +39,7 @@ from threadpoolctl import threadpool_limits
 from rigcal.errors import InputError
 from rigcal.io.atomic import atomic_write_text
 from rigcal.study.board_coverage import PriorSpec, board_coverage
-from rigcal.problem.mocap import ESTIMATORS
+from rigcal.problem.mocap import ESTIMATORS, MocapOptions
 from rigcal.study.coverage import ERROR_MODELS, pool_mocap, wilson
 
 
@@ -131,7 +131,7 @@ def main() -> int:
     ap.add_argument("--mocap-hold-floor", default="0,0", type=_floor,
                     help="motion capture: the MCS's per-hold accuracy the calibration is told, "
                          "rotation_rad,translation_m (MocapOptions.hold_sigma_floor; default none)")
-    ap.add_argument("--mocap-estimator", default="ls", choices=ESTIMATORS,
+    ap.add_argument("--mocap-estimator", default=MocapOptions.estimator, choices=ESTIMATORS,
                     help="motion capture: MocapOptions.estimator (default ls: the least-squares solution; "
                          "gls: weighted by the estimated noise model)")
     ap.add_argument("--mocap-json", default=None,

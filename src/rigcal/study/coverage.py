@@ -60,6 +60,9 @@ CHI2_95_3 = 7.814727903251178
 
 #: the error models :func:`mocap_coverage` draws sessions from (see the module docstring)
 ERROR_MODELS = ("pixel", "hold_bias", "mcs_capture", "lidar_range", "timing_jitter", "clock_offset", "mixed")
+#: the estimator of a ``--mocap-json`` file without the field: written before the estimator was
+#: chosen, by least squares, then the only one
+_UNNAMED_ESTIMATOR = "ls"
 
 _MCS_TRANSLATION_M = 0.001
 _MCS_ROTATION_RAD = 0.002
@@ -228,7 +231,7 @@ def _trial(rng: np.random.Generator, holds: int, frames: int, model: str, option
 
 def mocap_coverage(trials: int = 50, seed: int = 0, *, holds: int = 4, frames_per_hold: int = 5,
                    error_model: str = "hold_bias", hold_sigma_floor: tuple[float, float] = (0.0, 0.0),
-                   estimator: str = "ls") -> dict:
+                   estimator: str | None = None) -> dict:
     """Fractions of ``trials`` seeded simulated sessions (see the module docstring) whose true
     ``T_robot_sensor`` lies inside the reported 95 % region, per sensor and over both, under
     ``error_model`` (one of :data:`ERROR_MODELS`).
@@ -249,8 +252,8 @@ def mocap_coverage(trials: int = 50, seed: int = 0, *, holds: int = 4, frames_pe
     its translation part's, "pooled": how many took the MCS's per-hold error pooled over the
     sensors, "pooled_inside_6dof": how many of those hold the truth, "pooled_6dof": which did,
     in the order of "nees_6dof", "errors_m": every estimate's translation error [m] in that
-    order, "error_median_m": their median}}``), ``estimator`` (``MocapOptions.estimator``:
-    "ls", the default, or "gls"),
+    order, "error_median_m": their median}}``), ``estimator`` (the ``MocapOptions.estimator``
+    used, "ls" or "gls": the ``estimator`` argument, or the options' default when it is None),
     ``thresholds``
     and ``time_s``. Each trial draws from ``numpy.random.default_rng([seed, trial])``, so a
     seed reproduces the numbers.
@@ -264,7 +267,8 @@ def mocap_coverage(trials: int = 50, seed: int = 0, *, holds: int = 4, frames_pe
         raise InputError(f"mocap_coverage: error_model must be one of {', '.join(ERROR_MODELS)}, got {error_model!r}")
     from rigcal.problem.mocap import MocapOptions
 
-    options = MocapOptions(hold_sigma_floor=hold_sigma_floor, estimator=estimator)  # checks them (ConfigError)
+    options = MocapOptions(hold_sigma_floor=hold_sigma_floor,  # checks them (ConfigError)
+                           estimator=MocapOptions.estimator if estimator is None else estimator)
     t0 = time.perf_counter()
     per: dict[str, list] = {"lidar": [], "camera": []}
     failed, failures = 0, []
@@ -352,7 +356,7 @@ def _check_dump(name: str, data) -> None:
         raise InputError(f"{name}: 'hold_sigma_floor' must be [rotation_rad, translation_m], got {floor!r}")
     from rigcal.problem.mocap import ESTIMATORS
 
-    if data.get("estimator", "ls") not in ESTIMATORS:
+    if data.get("estimator", _UNNAMED_ESTIMATOR) not in ESTIMATORS:
         raise InputError(f"{name}: 'estimator' must be one of {', '.join(ESTIMATORS)}, got {data.get('estimator')!r}")
     for field in ("nees_6dof", "nees_3dof", "errors_m"):
         by_model = data.get(field, {})
@@ -386,8 +390,7 @@ def pool_mocap(dumps) -> dict:
     holds, floors, seeds, estimators = {}, {}, {}, {}
     for name, data in dumps:
         _check_dump(name, data)
-        # files written before the estimator was chosen are of least squares, then the only one
-        estimators[name] = data.get("estimator", "ls")
+        estimators[name] = data.get("estimator", _UNNAMED_ESTIMATOR)
         for model in data["nees_6dof"]:
             other = seeds.get((model, data["seed"]))
             if other is not None:

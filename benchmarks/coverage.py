@@ -132,8 +132,8 @@ def main() -> int:
                     help="motion capture: the MCS's per-hold accuracy the calibration is told, "
                          "rotation_rad,translation_m (MocapOptions.hold_sigma_floor; default none)")
     ap.add_argument("--mocap-estimator", default=MocapOptions.estimator, choices=ESTIMATORS,
-                    help="motion capture: MocapOptions.estimator (default ls: the least-squares solution; "
-                         "gls: weighted by the estimated noise model)")
+                    help=f"motion capture: MocapOptions.estimator (default {MocapOptions.estimator}; ls: the "
+                         "least-squares solution, gls: weighted by the estimated noise model)")
     ap.add_argument("--mocap-json", default=None,
                     help="motion capture: write every estimate's NEES (6-DOF and translation) per model and "
                          "sensor kind, and whether it took the pooled per-hold value, to this JSON file, to "
